@@ -1,0 +1,195 @@
+"""Taichi twin of ``mslam_ref.sim3`` — same names, parameters and shapes; see there for the maths.
+
+Each public function validates its inputs with the reference's checks, coerces them to the
+runtime dtype, broadcasts and flattens the leading batch axes, runs one parallel loop over the
+batch (one element per iteration, no reductions) and reshapes the output back. The building
+blocks are the ``@ti.func`` in ``mslam_fast._kernels.sim3``, which matching, tracking and the
+backend reuse inside their fused kernels.
+"""
+
+
+import math
+from typing import Any
+
+import numpy as np
+import taichi as ti
+
+from mslam_fast._kernels import sim3 as K
+from mslam_fast._runtime import ensure_init, flat, prepare
+from mslam_ref import sim3 as _ref
+
+__all__ = [
+    "act",
+    "act_and_jacobian",
+    "adjoint",
+    "adjoint_inv_apply",
+    "exp",
+    "from_matrix",
+    "identity",
+    "inv",
+    "log",
+    "mul",
+    "retract",
+    "to_matrix",
+]
+
+Array = np.ndarray[Any, Any]
+nd = ti.types.ndarray()
+
+
+# --- batch kernels: one per public function, so every ti.func is testable on its own ---------
+
+
+@ti.kernel
+def _exp_k(xi: nd, out: nd):
+    for i in range(xi.shape[0]):
+        K.store(out, i, K.sim3_exp(K.load(xi, i, 7)))
+
+
+@ti.kernel
+def _log_k(T: nd, out: nd):
+    for i in range(T.shape[0]):
+        K.store(out, i, K.sim3_log(K.load(T, i, 8)))
+
+
+@ti.kernel
+def _mul_k(A: nd, B: nd, out: nd):
+    for i in range(A.shape[0]):
+        K.store(out, i, K.sim3_mul(K.load(A, i, 8), K.load(B, i, 8)))
+
+
+@ti.kernel
+def _inv_k(T: nd, out: nd):
+    for i in range(T.shape[0]):
+        K.store(out, i, K.sim3_inv(K.load(T, i, 8)))
+
+
+@ti.kernel
+def _act_k(T: nd, X: nd, out: nd):
+    for i in range(T.shape[0]):
+        K.store(out, i, K.sim3_act(K.load(T, i, 8), K.load(X, i, 3)))
+
+
+@ti.kernel
+def _act_jac_k(T: nd, X: nd, out: nd, J: nd):
+    for i in range(T.shape[0]):
+        P = K.sim3_act(K.load(T, i, 8), K.load(X, i, 3))
+        K.store(out, i, P)
+        K.store_mat(J, i, K.sim3_act_jacobian(P))
+
+
+@ti.kernel
+def _adjoint_k(T: nd, out: nd):
+    for i in range(T.shape[0]):
+        K.store_mat(out, i, K.sim3_adjoint(K.load(T, i, 8)))
+
+
+@ti.kernel
+def _adj_inv_k(T: nd, J: nd, out: nd):
+    for i in range(T.shape[0]):
+        K.store(out, i, K.sim3_adj_inv_apply(K.load(T, i, 8), K.load(J, i, 7)))
+
+
+@ti.kernel
+def _retract_k(T: nd, xi: nd, out: nd):
+    for i in range(T.shape[0]):
+        K.store(out, i, K.sim3_retract(K.load(T, i, 8), K.load(xi, i, 7)))
+
+
+@ti.kernel
+def _to_matrix_k(T: nd, out: nd):
+    for i in range(T.shape[0]):
+        T_i = K.load(T, i, 8)
+        R = K.quat_to_matrix(K.quat(T_i))
+        for r in ti.static(range(3)):
+            for c in ti.static(range(3)):
+                out[i, r, c] = T_i[7] * R[r, c]
+            out[i, r, 3] = T_i[r]
+            out[i, 3, r] = 0.0
+        out[i, 3, 3] = 1.0
+
+
+# --- host wrappers -------------------------------------------------------------------------
+
+
+def _T(T: Any, name: str = "T") -> Array:
+    """Validate like the reference (shape, finite, s > 0, unit quaternion), then coerce."""
+    return prepare(_ref.validate(T, name), name, 8)
+
+
+def _run(kernel: Any, inputs: list[tuple[Array, int]], out_tail: tuple[int, ...]) -> Array:
+    """Broadcast ``inputs`` (array, element size) over their batch axes, run ``kernel``."""
+    batch = np.broadcast_shapes(*(a.shape[:-1] for a, _ in inputs))
+    dtype = ensure_init().dtype
+    out = np.empty((*batch, *out_tail), dtype=dtype)
+    if math.prod(batch) > 0:
+        kernel(*(flat(a, batch, k) for a, k in inputs), out.reshape(-1, *out_tail))
+    return out
+
+
+def identity(batch_shape: tuple[int, ...] = ()) -> Array:
+    """Taichi twin of ``mslam_ref.sim3.identity`` (host-only: no kernel needed)."""
+    return _ref.identity(batch_shape).astype(ensure_init().dtype)
+
+
+def exp(xi: Any) -> Array:
+    """Taichi twin of ``mslam_ref.sim3.exp``."""
+    return _run(_exp_k, [(prepare(xi, "xi", 7), 7)], (8,))
+
+
+def log(T: Any) -> Array:
+    """Taichi twin of ``mslam_ref.sim3.log`` (3x3 inverse of W per element)."""
+    return _run(_log_k, [(_T(T), 8)], (7,))
+
+
+def mul(A: Any, B: Any) -> Array:
+    """Taichi twin of ``mslam_ref.sim3.mul``."""
+    return _run(_mul_k, [(_T(A, "A"), 8), (_T(B, "B"), 8)], (8,))
+
+
+def inv(T: Any) -> Array:
+    """Taichi twin of ``mslam_ref.sim3.inv``."""
+    return _run(_inv_k, [(_T(T), 8)], (8,))
+
+
+def act(T: Any, X: Any) -> Array:
+    """Taichi twin of ``mslam_ref.sim3.act``."""
+    return _run(_act_k, [(_T(T), 8), (prepare(X, "X", 3), 3)], (3,))
+
+
+def act_and_jacobian(T: Any, X: Any) -> tuple[Array, Array]:
+    """Taichi twin of ``mslam_ref.sim3.act_and_jacobian``; P and J come from one fused loop."""
+    T_, X_ = _T(T), prepare(X, "X", 3)
+    batch = np.broadcast_shapes(T_.shape[:-1], X_.shape[:-1])
+    dtype = ensure_init().dtype
+    P = np.empty((*batch, 3), dtype=dtype)
+    J = np.empty((*batch, 3, 7), dtype=dtype)
+    if math.prod(batch) > 0:
+        _act_jac_k(flat(T_, batch, 8), flat(X_, batch, 3), P.reshape(-1, 3), J.reshape(-1, 3, 7))
+    return P, J
+
+
+def adjoint(T: Any) -> Array:
+    """Taichi twin of ``mslam_ref.sim3.adjoint``."""
+    return _run(_adjoint_k, [(_T(T), 8)], (7, 7))
+
+
+def adjoint_inv_apply(T: Any, J: Any) -> Array:
+    """Taichi twin of ``mslam_ref.sim3.adjoint_inv_apply``."""
+    return _run(_adj_inv_k, [(_T(T), 8), (prepare(J, "J", 7), 7)], (7,))
+
+
+def retract(T: Any, xi: Any) -> Array:
+    """Taichi twin of ``mslam_ref.sim3.retract``."""
+    return _run(_retract_k, [(_T(T), 8), (prepare(xi, "xi", 7), 7)], (8,))
+
+
+def to_matrix(T: Any) -> Array:
+    """Taichi twin of ``mslam_ref.sim3.to_matrix``."""
+    return _run(_to_matrix_k, [(_T(T), 8)], (4, 4))
+
+
+def from_matrix(M: Any) -> Array:
+    """Taichi twin of ``mslam_ref.sim3.from_matrix`` (host-side: a 3x3 determinant and
+    Shepperd's quaternion extraction per element are not worth a kernel)."""
+    return _ref.from_matrix(M).astype(ensure_init().dtype)

@@ -1,0 +1,66 @@
+"""Conventions shared by every module: array aliases, dimension letters, input checks.
+
+Dimension letters used in docstrings (see docs/conventions.md):
+    H, W   image height and width in pixels (network output resolution)
+    N      H * W pixels of one image, or the number of points in a flat list
+    F      descriptor dimension (24 for MASt3R)
+    K      number of keyframes
+    E      number of graph edges
+    M, P   bundle adjustment: number of cameras (poses) and of points (landmarks)
+    O      bundle adjustment: number of observations (edges)
+
+Frames: ``T_AB`` maps points expressed in frame B into frame A (``X_A = T_AB · X_B``).
+Pixels are ``(u, v) = (column, row)``; the linear pixel index is ``n = u + W v``.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.int64]
+BoolArray = npt.NDArray[np.bool_]
+
+#: Threshold of the small-angle / small-sigma series in Exp and Log (lietorch's EPS).
+EPS_EXP = 1e-6
+
+#: Identity element of Sim(3) in data layout [tx, ty, tz, qx, qy, qz, qw, s].
+SIM3_IDENTITY = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 1.0])
+
+
+def as_float_array(x: Any, name: str, trailing: int | tuple[int, ...] | None = None) -> FloatArray:
+    """Convert ``x`` to a float64 array and check its trailing shape and finiteness.
+
+    Args:
+        x: array-like input.
+        name: argument name used in error messages.
+        trailing: required trailing dimension(s), e.g. ``3`` or ``(3, 3)``; None skips the check.
+
+    Returns:
+        float64 array (a copy only when conversion needs one).
+
+    Raises:
+        ValueError: on a wrong trailing shape or a NaN/inf entry, naming ``name``.
+    """
+    arr = np.asarray(x, dtype=np.float64)
+    if trailing is not None:
+        tr = (trailing,) if isinstance(trailing, int) else tuple(trailing)
+        if arr.ndim < len(tr) or arr.shape[arr.ndim - len(tr) :] != tr:
+            raise ValueError(f"{name}: expected trailing shape {tr}, got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name}: contains non-finite values (NaN or inf)")
+    return arr
+
+
+def pixel_to_lin(u: npt.ArrayLike, v: npt.ArrayLike, W: int) -> IntArray:
+    """Linear pixel index ``n = u + W v`` (upstream matching.py::pixel_to_lin)."""
+    return (np.asarray(u, dtype=np.int64) + W * np.asarray(v, dtype=np.int64)).astype(np.int64)
+
+
+def lin_to_pixel(n: npt.ArrayLike, W: int) -> tuple[IntArray, IntArray]:
+    """Inverse of :func:`pixel_to_lin`: ``(u, v) = (n mod W, n div W)``."""
+    n = np.asarray(n, dtype=np.int64)
+    return n % W, n // W

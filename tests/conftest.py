@@ -1,0 +1,67 @@
+"""Shared pytest set-up: hypothesis profiles, the Taichi runtime fixtures, plotting backend.
+
+* ``HYPOTHESIS_PROFILE`` selects ``ci`` (default: 50 examples per property, derandomised) or
+  ``dev`` (10 examples, for quick local loops).
+* ``fp`` is a session-scoped parameter ("f64", "f32") so pytest groups the tests of one precision
+  together and Taichi is re-initialised rarely; ``fast`` (function scope) re-asserts that precision
+  before each test, because other tests may have switched it.
+* ``fast64`` pins float64 for tests that only make sense at full precision.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+os.environ.setdefault("MPLBACKEND", "Agg")
+os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "0")
+
+import pytest
+from hypothesis import HealthCheck, settings
+
+settings.register_profile(
+    "ci",
+    max_examples=50,
+    deadline=None,
+    derandomize=True,
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
+)
+settings.register_profile(
+    "dev", max_examples=10, deadline=None, suppress_health_check=[HealthCheck.too_slow]
+)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
+
+#: The shared data folder beside the checkout (real sequences, BA problems, trajectories).
+SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+
+
+@pytest.fixture(scope="session")
+def shared_data() -> Path:
+    """Path of ../shared/data; the test is skipped when it is absent."""
+    if not SHARED_DATA.is_dir():
+        pytest.skip(f"shared data not found at {SHARED_DATA}")
+    return SHARED_DATA
+
+
+@pytest.fixture(scope="session", params=["f64", "f32"])
+def fp(request: pytest.FixtureRequest) -> str:
+    """Precision of the fast kernels under test."""
+    return str(request.param)
+
+
+@pytest.fixture
+def fast(fp: str) -> str:
+    """Initialise mslam_fast on the CPU at precision ``fp`` (idempotent) and return ``fp``."""
+    import mslam_fast
+
+    mslam_fast.init("cpu", fp)
+    return fp
+
+
+@pytest.fixture
+def fast64() -> str:
+    """Initialise mslam_fast on the CPU in float64."""
+    import mslam_fast
+
+    mslam_fast.init("cpu", "f64")
+    return "f64"
