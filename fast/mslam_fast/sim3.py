@@ -17,6 +17,7 @@ import taichi as ti
 from mslam_fast._kernels import sim3 as K
 from mslam_fast._runtime import ensure_init, flat, prepare
 from mslam_ref import sim3 as _ref
+from mslam_ref.conventions import as_float_array
 
 __all__ = [
     "act",
@@ -113,8 +114,24 @@ def _to_matrix_k(T: nd, out: nd):
 
 
 def _T(T: Any, name: str = "T") -> Array:
-    """Validate like the reference (shape, finite, s > 0, unit quaternion), then coerce."""
-    return prepare(_ref.validate(T, name), name, 8)
+    """Validate like ``mslam_ref.sim3.validate`` (shape, finite, s > 0, non-zero quaternion, same
+    messages), normalise the quaternion, coerce to the runtime dtype.
+
+    Cheaper than calling the reference's ``validate``: one finiteness pass instead of two, and the
+    copy that normalises is made only when some quaternion is not unit to 1e-12 already (skipping
+    the division then changes the result by < 1e-12, far inside the parity tolerance).
+    """
+    arr = as_float_array(T, name, 8)
+    if np.any(arr[..., 7] <= 0.0):
+        raise ValueError(f"{name}: scale s (index 7) must be positive")
+    q = arr[..., 3:7]
+    n2 = np.einsum("...i,...i->...", q, q)
+    if np.any(n2 < 1e-24):
+        raise ValueError(f"{name}: quaternion has (near) zero norm and cannot be normalised")
+    if np.any(np.abs(n2 - 1.0) > 1e-12):
+        arr = arr.copy()
+        arr[..., 3:7] /= np.sqrt(n2)[..., None]
+    return np.ascontiguousarray(arr, dtype=ensure_init().dtype)
 
 
 def _run(kernel: Any, inputs: list[tuple[Array, int]], out_tail: tuple[int, ...]) -> Array:

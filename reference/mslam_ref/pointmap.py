@@ -168,7 +168,7 @@ def scale_intrinsics(
 
 def _resized_size(W1: int, H1: int, long_edge: int) -> tuple[int, int]:
     S = max(W1, H1)
-    return int(round(W1 * long_edge / S)), int(round(H1 * long_edge / S))
+    return round(W1 * long_edge / S), round(H1 * long_edge / S)
 
 
 def resize_img(

@@ -3,6 +3,9 @@
 Layout (lietorch / Eigen ``coeffs()`` order): a rotation is a unit Hamilton quaternion
 ``q = [qx, qy, qz, qw]`` of shape ``(..., 4)``; a tangent vector is ``phi (..., 3)``
 (axis times angle). Every function broadcasts over leading batch axes and works in float64.
+A wrong trailing shape or a NaN/inf entry raises ``ValueError`` naming the argument. Only ``log``
+normalises its input; ``mul``, ``conj``, ``act`` and ``to_matrix`` take the quaternion as given
+(unit by contract).
 
 Public functions, in reading order:
     exp(phi)            -> q        rotation vector to quaternion
@@ -64,7 +67,7 @@ def hat(v: FloatArray) -> FloatArray:
     Returns:
         (..., 3, 3) matrix.
     """
-    v = np.asarray(v, dtype=np.float64)
+    v = as_float_array(v, "v", 3)
     x, y, z = v[..., 0], v[..., 1], v[..., 2]
     o = np.zeros_like(x)
     return np.stack(
@@ -105,8 +108,10 @@ def log(q: FloatArray) -> FloatArray:
 
         n = ||q_v||,  phi = f * q_v,  f = 2 atan(n / w) / n
 
-    Numerics: when n^2 < EPS^2 the series f = 2/w - (2/3) n^2 / w^3 is used; when |w| < EPS
-    the angle is +-pi and f = +-pi / n (sign of w). A negative w yields the shorter rotation.
+    Numerics: when n^2 < EPS^2 the series f = 2/w - (2/3) n^2 / w^3 is used; otherwise
+    f = sign(w) 2 atan2(n, |w|) / n (sign(0) = +1), which is exact up to and including w = 0.
+    lietorch uses f = +-pi / n when |w| < EPS, an angle error of up to 2 |w| (2e-6); this
+    reference does not copy that. A negative w yields the shorter rotation (||phi|| <= pi).
 
     Args:
         q: (..., 4) quaternion; normalised first.
@@ -121,9 +126,8 @@ def log(q: FloatArray) -> FloatArray:
     n_safe = np.where(n > 0.0, n, 1.0)
     w_safe = np.where(np.abs(w) > 0.0, w, 1.0)
     f_series = 2.0 / w_safe - (2.0 / 3.0) * n2 / w_safe**3
-    f_pi = np.where(w > 0.0, np.pi, -np.pi) / n_safe
-    f_gen = 2.0 * np.arctan(n / w_safe) / n_safe
-    f = np.where(n2 < EPS_EXP**2, f_series, np.where(np.abs(w) < EPS_EXP, f_pi, f_gen))
+    f_gen = np.where(w >= 0.0, 2.0, -2.0) * np.arctan2(n, np.abs(w)) / n_safe
+    f = np.where(n2 < EPS_EXP**2, f_series, f_gen)
     return f[..., None] * qv
 
 
@@ -137,8 +141,8 @@ def mul(q1: FloatArray, q2: FloatArray) -> FloatArray:
     Returns:
         (..., 4) quaternion.
     """
-    q1 = np.asarray(q1, dtype=np.float64)
-    q2 = np.asarray(q2, dtype=np.float64)
+    q1 = as_float_array(q1, "q1", 4)
+    q2 = as_float_array(q2, "q2", 4)
     v1, w1 = q1[..., :3], q1[..., 3:]
     v2, w2 = q2[..., :3], q2[..., 3:]
     v = w1 * v2 + w2 * v1 + np.cross(v1, v2)
@@ -155,7 +159,7 @@ def conj(q: FloatArray) -> FloatArray:
     Returns:
         (..., 4) quaternion.
     """
-    q = np.asarray(q, dtype=np.float64)
+    q = as_float_array(q, "q", 4)
     return np.concatenate([-q[..., :3], q[..., 3:]], axis=-1)
 
 
@@ -173,8 +177,8 @@ def act(q: FloatArray, X: FloatArray) -> FloatArray:
     Returns:
         (..., 3) rotated points.
     """
-    q = np.asarray(q, dtype=np.float64)
-    X = np.asarray(X, dtype=np.float64)
+    q = as_float_array(q, "q", 4)
+    X = as_float_array(X, "X", 3)
     qv, w = q[..., :3], q[..., 3:]
     u = 2.0 * np.cross(qv, X)
     return X + w * u + np.cross(qv, u)
@@ -189,7 +193,7 @@ def to_matrix(q: FloatArray) -> FloatArray:
     Returns:
         (..., 3, 3) rotation matrix R with R X = act(q, X).
     """
-    q = np.asarray(q, dtype=np.float64)
+    q = as_float_array(q, "q", 4)
     x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
     rows = [
         [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
@@ -211,10 +215,7 @@ def from_matrix(R: FloatArray) -> FloatArray:
     Returns:
         (..., 4) unit quaternion [qx, qy, qz, qw].
     """
-    R = np.asarray(R, dtype=np.float64)
-    if R.shape[-2:] != (3, 3):
-        raise ValueError(f"R: expected trailing shape (3, 3), got {R.shape}")
-    m = R
+    m = as_float_array(R, "R", (3, 3))
     tr = m[..., 0, 0] + m[..., 1, 1] + m[..., 2, 2]
     # Candidate quaternions (unnormalised, each accurate when its pivot is largest).
     cands = np.stack(

@@ -116,19 +116,24 @@ def so3_log(q):
     f = 0.0
     if n2 < EPS * EPS:
         f = 2.0 / w - (2.0 / 3.0) * n2 / (w * w * w)
-    elif ti.abs(w) < EPS:
-        f = (3.141592653589793 if w > 0.0 else -3.141592653589793) / n
-    else:
-        f = 2.0 * ti.atan2(n, w) / n if w > 0.0 else 2.0 * ti.atan2(-n, -w) / n
+    else:  # exact up to w = 0 (lietorch's +-pi/n for |w| < EPS errs by up to 2|w|)
+        f = (2.0 if w >= 0.0 else -2.0) * ti.atan2(n, ti.abs(w)) / n
     return f * qv
 
 
 @ti.func
-def W_coefficients(th, sigma):
-    """A, B, C of W = A Phi + B Phi^2 + C I (see mslam_ref.sim3._W_coefficients)."""
-    A = 0.0
-    B = 0.0
-    C = 0.0
+def W_coefficients(th_, sigma_):
+    """A, B, C of W = A Phi + B Phi^2 + C I (see mslam_ref.sim3._W_coefficients).
+
+    Evaluated in f64 whatever the runtime precision, then cast back to ``default_fp``: in f32
+    the closed forms cancel catastrophically (e.g. ``((sigma - 1) s + 1) / sigma^2`` at
+    sigma ~ 1e-6, or ``(1 - cos th) / th^2`` at th ~ 1e-4), which gave errors up to 1e-2 in t.
+    """
+    th = ti.cast(th_, ti.f64)
+    sigma = ti.cast(sigma_, ti.f64)
+    A = ti.f64(0.0)
+    B = ti.f64(0.0)
+    C = ti.f64(0.0)
     if ti.abs(sigma) < EPS:
         C = 1.0 + sigma / 2.0 + sigma * sigma / 6.0
         if th < EPS:
@@ -136,14 +141,20 @@ def W_coefficients(th, sigma):
             B = 1.0 / 6.0
         else:
             c, s_ = ti.cos(th), ti.sin(th)
-            A = (1.0 - c) / (th * th) + sigma * (s_ - th * c) / (th * th * th)
+            sh = ti.sin(0.5 * th)  # 1 - cos th = 2 sin^2(th/2), no cancellation
+            A = 2.0 * sh * sh / (th * th) + sigma * (s_ - th * c) / (th * th * th)
             B = (th - s_) / (th * th * th) + sigma * (
                 0.5 / (th * th) - (c + th * s_ - 1.0) / (th * th * th * th)
             )
     else:
         s = ti.exp(sigma)
-        C = (s - 1.0) / sigma
-        if th < EPS:
+        C = (s - 1.0) / ti.log(s)  # = expm1(sigma)/sigma (Kahan); (s - 1)/sigma loses 1e-10
+        if th < EPS and ti.abs(sigma) < 1e-2:  # series: the closed forms cancel
+            sg = sigma
+            A = 0.5 + sg / 3.0 + sg * sg / 8.0 + sg * sg * sg / 30.0 + sg * sg * sg * sg / 144.0
+            B = 1.0 / 6.0 + sg / 8.0 + sg * sg / 20.0 + sg * sg * sg / 72.0
+            B += sg * sg * sg * sg / 336.0
+        elif th < EPS:
             A = ((sigma - 1.0) * s + 1.0) / (sigma * sigma)
             B = (s * sigma * sigma / 2.0 + s - 1.0 - sigma * s) / (sigma * sigma * sigma)
         else:
@@ -152,7 +163,7 @@ def W_coefficients(th, sigma):
             cc = th * th + sigma * sigma
             A = (a * sigma + (1.0 - b) * th) / (th * cc)
             B = (C - ((b - 1.0) * sigma + a * th) / cc) / (th * th)
-    return A, B, C
+    return ti.cast(A, float), ti.cast(B, float), ti.cast(C, float)
 
 
 @ti.func

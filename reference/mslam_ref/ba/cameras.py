@@ -228,4 +228,3 @@ def bal_retract_cameras(cameras: FloatArray, delta: FloatArray) -> FloatArray:
     out = cameras + delta
     out[:, :3] = so3.log(q)
     return out
-

@@ -92,7 +92,7 @@ class FrameSequence:
     distortion: FloatArray | None = None
 
     def __len__(self) -> int:
-        return int(len(self.timestamps))
+        return len(self.timestamps)
 
     def _load(self, i: int) -> Frame:  # pragma: no cover - abstract
         raise NotImplementedError

@@ -45,7 +45,9 @@ def look_at(position: FloatArray, yaw: FloatArray, pitch: FloatArray, roll: Floa
     """
     position = np.asarray(position, dtype=np.float64).reshape(-1, 3)
     n = len(position)
-    yaw, pitch, roll = (np.broadcast_to(np.asarray(a, np.float64), (n,)) for a in (yaw, pitch, roll))
+    yaw, pitch, roll = (
+        np.broadcast_to(np.asarray(a, np.float64), (n,)) for a in (yaw, pitch, roll)
+    )
     f = np.stack([np.cos(pitch) * np.cos(yaw), np.cos(pitch) * np.sin(yaw), np.sin(pitch)], -1)
     x = np.cross(f, np.array([0.0, 0.0, 1.0]))
     x /= np.linalg.norm(x, axis=-1, keepdims=True)

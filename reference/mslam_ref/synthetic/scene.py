@@ -171,22 +171,20 @@ def cast_rays(scene: Scene, origin: FloatArray, dirs: FloatArray) -> tuple[Float
 def _value_noise(lattice: FloatArray, p: FloatArray) -> FloatArray:
     """Smoothstep-interpolated value noise on a periodic lattice; (N, 3) -> (N, C)."""
     G = lattice.shape[0]
-    flat = lattice.reshape(G**3, -1)
+    flat = np.ascontiguousarray(lattice).reshape(G**3, -1)
     pf = np.floor(p)
     f = p - pf
     w1 = f * f * (3.0 - 2.0 * f)
     w0 = 1.0 - w1
     i0 = pf.astype(np.int64) % G
     i1 = (i0 + 1) % G
-    ix = np.stack([i0[:, 0], i1[:, 0]], -1) * (G * G)  # (N, 2)
-    iy = np.stack([i0[:, 1], i1[:, 1]], -1) * G
-    iz = np.stack([i0[:, 2], i1[:, 2]], -1)
-    idx = (ix[:, :, None, None] + iy[:, None, :, None] + iz[:, None, None, :]).reshape(-1, 8)
-    wx = np.stack([w0[:, 0], w1[:, 0]], -1)
-    wy = np.stack([w0[:, 1], w1[:, 1]], -1)
-    wz = np.stack([w0[:, 2], w1[:, 2]], -1)
-    w = (wx[:, :, None, None] * wy[:, None, :, None] * wz[:, None, None, :]).reshape(-1, 8)
-    return np.einsum("nk,nkc->nc", w, flat[idx])
+    out = np.zeros((len(p), flat.shape[1]))
+    for ix, wx in ((i0[:, 0], w0[:, 0]), (i1[:, 0], w1[:, 0])):
+        for iy, wy in ((i0[:, 1], w0[:, 1]), (i1[:, 1], w1[:, 1])):
+            ixy, wxy = (ix * G + iy) * G, wx * wy
+            for iz, wz in ((i0[:, 2], w0[:, 2]), (i1[:, 2], w1[:, 2])):
+                out += (wxy * wz)[:, None] * flat[ixy + iz]
+    return out
 
 
 def shade(scene: Scene, P: FloatArray, sid: IntArray) -> FloatArray:
@@ -203,12 +201,14 @@ def shade(scene: Scene, P: FloatArray, sid: IntArray) -> FloatArray:
     """
     off = sid[:, None] * np.array([7.31, 3.17, 5.03])
     q = P + off
+    lat3, lat1 = scene.lattice, scene.lattice[..., :1]
     n = 0.0
-    for freq, amp in _OCTAVES:
-        n = n + amp * _value_noise(scene.lattice, q * freq + 11.0 * amp)
+    for k, (freq, amp) in enumerate(_OCTAVES):
+        # Colour variation at the coarse octaves, grey detail at the fine ones (cheaper).
+        n = n + amp * _value_noise(lat3 if k < 2 else lat1, q * freq + 11.0 * amp)
     grey = n.mean(axis=1, keepdims=True)
     base = scene.colours[sid] * (0.62 + 0.8 * grey) + 0.25 * (n - grey)
-    blob = _value_noise(scene.lattice, q * 1.7 + 3.3)[:, :1]
+    blob = _value_noise(scene.lattice[..., 1:2], q * 1.7 + 3.3)
     m = np.clip((blob - 0.15) / 0.2, 0.0, 1.0)
     m = m * m * (3.0 - 2.0 * m)
     col = (1.0 - m) * base + m * scene.blob_colours[sid] * (0.7 + 0.6 * grey)

@@ -1,0 +1,1 @@
+"""Taichi-scope building blocks (@ti.func) shared by the fast kernels."""

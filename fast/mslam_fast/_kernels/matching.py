@@ -1,0 +1,169 @@
+"""``@ti.func`` building blocks of pointmap matching; the maths is in ``mslam_ref.matching``.
+
+One Taichi thread handles one target pixel n of image 2: the Levenberg–Marquardt on its pixel
+position (``lm_pixel``), truncation and the 3-D distance test (in the fused kernel of
+``mslam_fast.matching``), then the descriptor refinement (``refine_pixel``). Every arithmetic
+expression is written in the order of the NumPy reference (dot products of 3-vectors as
+``a0 b0 + a1 b1 + a2 b2``, bilinear taps in the order 00, 10, 01, 11) so that float64 runs
+agree bit for bit up to LLVM's fused multiply-adds.
+
+Arrays (Taichi ndarrays): ray image ``RG (B, H, W, 9)`` = [R, gx, gy]; points ``(B, H, W, 3)``
+or ``(B, N, 3)``; descriptors ``D11 (B, H, W, F)``, ``D21 (B, N, F)``.
+"""
+
+import taichi as ti
+
+NORM_EPS = 1e-12  # F.normalize eps, as mslam_ref.matching.NORM_EPS
+DET_MIN = 1e-30  # 2x2 determinant below which the LM step is zero, as mslam_ref.matching.DET_MIN
+
+
+@ti.func
+def dot3(a, b):
+    """a0 b0 + a1 b1 + a2 b2 (the reference's ``_dot3`` order)."""
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+@ti.func
+def normalize3(x):
+    """x / max(‖x‖, 1e-12): F.normalize; a zero vector stays zero."""
+    return x / ti.max(ti.sqrt(dot3(x, x)), NORM_EPS)
+
+
+@ti.func
+def load3(A: ti.template(), b, i, j):
+    """A[b, i, j, 0:3] as a 3-vector (a point of a (B, H, W, 3) array)."""
+    return ti.Vector([A[b, i, j, 0], A[b, i, j, 1], A[b, i, j, 2]])
+
+
+@ti.func
+def reflect(i, n):
+    """Index of reflect padding by one pixel: -1 -> 1, n -> n - 2."""
+    j = i
+    if i < 0:
+        j = 1
+    elif i > n - 1:
+        j = n - 2
+    return j
+
+
+@ti.func
+def scharr_at(R: ti.template(), b, v, u, H, W, c):
+    """Scharr gx, gy (1/32, cross-correlation, reflect padding) of channel c of R at (v, u)."""
+    um, up = reflect(u - 1, W), reflect(u + 1, W)
+    vm, vp = reflect(v - 1, H), reflect(v + 1, H)
+    gx = (
+        3.0 * (R[b, vm, up, c] - R[b, vm, um, c])
+        + 10.0 * (R[b, v, up, c] - R[b, v, um, c])
+        + 3.0 * (R[b, vp, up, c] - R[b, vp, um, c])
+    ) / 32.0
+    gy = (
+        3.0 * (R[b, vp, um, c] - R[b, vm, um, c])
+        + 10.0 * (R[b, vp, u, c] - R[b, vm, u, c])
+        + 3.0 * (R[b, vp, up, c] - R[b, vm, up, c])
+    ) / 32.0
+    return gx, gy
+
+
+@ti.func
+def sample9(RG: ti.template(), b, u, v):
+    """Bilinear sample of all 9 channels of RG at (u, v) (0 <= u <= W-2, 0 <= v <= H-2)."""
+    fu, fv = ti.floor(u), ti.floor(v)
+    iu, iv = ti.cast(fu, ti.i32), ti.cast(fv, ti.i32)
+    du, dv = u - fu, v - fv
+    w00 = (1.0 - du) * (1.0 - dv)
+    w10 = du * (1.0 - dv)
+    w01 = (1.0 - du) * dv
+    w11 = du * dv
+    out = ti.Vector([0.0] * 9)
+    for c in ti.static(range(9)):
+        out[c] = (
+            w00 * RG[b, iv, iu, c]
+            + w10 * RG[b, iv, iu + 1, c]
+            + w01 * RG[b, iv + 1, iu, c]
+            + w11 * RG[b, iv + 1, iu + 1, c]
+        )
+    return out
+
+
+@ti.func
+def ray_cost(S, t):
+    """‖normalize(S[0:3]) − t‖² and the error vector e."""
+    r = normalize3(ti.Vector([S[0], S[1], S[2]]))
+    e = r - t
+    return dot3(e, e), e
+
+
+@ti.func
+def clamp(x, lo, hi):
+    """min(max(x, lo), hi), as np.clip."""
+    return ti.min(ti.max(x, lo), hi)
+
+
+@ti.func
+def lm_pixel(RG: ti.template(), b, t, u_init, v_init, H, W, max_iter, lam0, thresh):
+    """Per-pixel LM of ``mslam_ref.matching.iter_proj``; returns (u, v, converged)."""
+    u = clamp(u_init, 1.0, W - 2.0)
+    v = clamp(v_init, 1.0, H - 2.0)
+    lam = lam0
+    conv = 0
+    S = sample9(RG, b, u, v)
+    for _ in range(max_iter):
+        cost, e = ray_cost(S, t)
+        gx = ti.Vector([S[3], S[4], S[5]])
+        gy = ti.Vector([S[6], S[7], S[8]])
+        A00 = dot3(gx, gx) + lam
+        A01 = dot3(gx, gy)
+        A11 = dot3(gy, gy) + lam
+        b0 = -dot3(e, gx)
+        b1 = -dot3(e, gy)
+        det = A00 * A11 - A01 * A01
+        du = 0.0 * lam
+        dv = 0.0 * lam
+        if det > DET_MIN:  # Eq. (3): closed-form 2x2 solve of (JᵀJ + λI) δ = −Jᵀe
+            du = (A11 * b0 - A01 * b1) / det
+            dv = (A00 * b1 - A01 * b0) / det
+        u_new = clamp(u + du, 1.0, W - 2.0)
+        v_new = clamp(v + dv, 1.0, H - 2.0)
+        S_new = sample9(RG, b, u_new, v_new)
+        new_cost, _e = ray_cost(S_new, t)
+        if new_cost < cost:
+            u, v, S = u_new, v_new, S_new
+            lam *= 0.1
+            conv = 1 if new_cost < thresh else 0
+        else:
+            lam *= 10.0
+            conv = 1 if cost < thresh else 0
+    return u, v, conv
+
+
+@ti.func
+def refine_pixel(
+    D11: ti.template(), D21: ti.template(), b, n, u_start, v_start, H, W, radius, dmax,
+    F: ti.template()
+):
+    """Coarse-to-fine descriptor search of ``mslam_ref.matching.refine_matches``; returns (u, v).
+
+    Scores are accumulated in the descriptors' dtype (sequential over k) and compared with
+    ``best`` (initially 0.0, ``REFINE_BEST_INIT``) in the runtime float type.
+    """
+    d2 = ti.Vector([D21[b, n, k] for k in ti.static(range(F))])
+    best = 0.0
+    u0, v0 = u_start, v_start
+    ub, vb = u_start, v_start
+    for level in range(dmax):
+        d = dmax - level
+        rd = radius * d
+        for i in range(2 * radius + 1):  # u offset, outer (upstream loop order)
+            u = u0 - rd + i * d
+            if 0 <= u < W:
+                for j in range(2 * radius + 1):
+                    v = v0 - rd + j * d
+                    if 0 <= v < H:
+                        s = d2[0] * D11[b, v, u, 0]
+                        for k in ti.static(range(1, F)):
+                            s += d2[k] * D11[b, v, u, k]
+                        if s > best:
+                            best = s
+                            ub, vb = u, v
+        u0, v0 = ub, vb
+    return ub, vb

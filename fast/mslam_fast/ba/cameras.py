@@ -1,0 +1,154 @@
+"""Taichi twin of ``mslam_ref.ba.cameras`` — same names, parameters and shapes; see there for the maths.
+
+Each public function runs one parallel loop over the O observations (one observation per
+iteration, no reductions); projection, residual and both Jacobians are fused in one pass. Inputs
+are coerced to the runtime dtype; indices stay int64.
+"""
+
+from typing import Any
+
+import numpy as np
+import taichi as ti
+from mslam_ref.ba.cameras import bal_retract_cameras
+
+from mslam_fast._kernels import ba as K
+from mslam_fast._runtime import ensure_init, prepare
+
+__all__ = [
+    "bal_linearize",
+    "bal_residuals",
+    "bal_retract_cameras",
+    "pinhole_linearize",
+    "pinhole_residuals",
+]
+
+Array = np.ndarray[Any, Any]
+nd = ti.types.ndarray()
+
+
+@ti.func
+def _load(A: ti.template(), i, n: ti.template()):
+    return ti.Vector([A[i, k] for k in ti.static(range(n))])
+
+
+@ti.kernel
+def _bal_res_k(cams: nd, pts: nd, oc: nd, op: nd, obs: nd, r: nd):
+    for e in range(oc.shape[0]):
+        pix, _R, _RX, _P, _p, _r2, _d = K.bal_project(_load(cams, oc[e], 9), _load(pts, op[e], 3))
+        for i in ti.static(range(2)):
+            r[e, i] = pix[i] - obs[e, i]
+
+
+@ti.kernel
+def _bal_lin_k(cams: nd, pts: nd, oc: nd, op: nd, obs: nd, r: nd, Jc: nd, Jp: nd):
+    for e in range(oc.shape[0]):
+        cam = _load(cams, oc[e], 9)
+        pix, R, RX, P, p, r2, d = K.bal_project(cam, _load(pts, op[e], 3))
+        A, B = K.bal_jacobians(cam, R, RX, P, p, r2, d)
+        for i in ti.static(range(2)):
+            r[e, i] = pix[i] - obs[e, i]
+            for j in ti.static(range(9)):
+                Jc[e, i, j] = A[i, j]
+            for j in ti.static(range(3)):
+                Jp[e, i, j] = B[i, j]
+
+
+@ti.kernel
+def _pin_res_k(poses: nd, intr: nd, pts: nd, oc: nd, op: nd, meas: nd, st: nd, r: nd):
+    for e in range(oc.shape[0]):
+        proj, _Xc, _R = K.pinhole_project(
+            _load(poses, oc[e], 7), _load(intr, oc[e], 5), _load(pts, op[e], 3)
+        )
+        for i in ti.static(range(2)):
+            r[e, i] = proj[i] - meas[e, i]
+        r[e, 2] = (proj[2] - meas[e, 2]) * st[e]
+
+
+@ti.kernel
+def _pin_lin_k(
+    poses: nd, intr: nd, pts: nd, oc: nd, op: nd, meas: nd, st: nd, r: nd, Jc: nd, Jp: nd
+):
+    for e in range(oc.shape[0]):
+        Kc = _load(intr, oc[e], 5)
+        proj, Xc, R = K.pinhole_project(_load(poses, oc[e], 7), Kc, _load(pts, op[e], 3))
+        A, B = K.pinhole_jacobians(Kc, Xc, R, st[e])
+        for i in ti.static(range(2)):
+            r[e, i] = proj[i] - meas[e, i]
+        r[e, 2] = (proj[2] - meas[e, 2]) * st[e]
+        for i in ti.static(range(3)):
+            for j in ti.static(range(6)):
+                Jc[e, i, j] = A[i, j]
+            for j in ti.static(range(3)):
+                Jp[e, i, j] = B[i, j]
+
+
+def _idx(x: Any) -> Array:
+    return np.ascontiguousarray(x, dtype=np.int64)
+
+
+def _empty(*shape: int) -> Array:
+    return np.zeros(shape, dtype=ensure_init().dtype)
+
+
+def bal_residuals(cameras: Any, points: Any, obs_cam: Any, obs_pt: Any, obs: Any) -> Array:
+    """Taichi twin of ``mslam_ref.ba.cameras.bal_residuals`` (parallel over O)."""
+    args = (prepare(cameras, "cameras", 9), prepare(points, "points", 3), _idx(obs_cam),
+            _idx(obs_pt), prepare(obs, "obs", 2))  # fmt: skip
+    r = _empty(len(args[2]), 2)
+    if len(r):
+        _bal_res_k(*args, r)
+    return r
+
+
+def bal_linearize(
+    cameras: Any, points: Any, obs_cam: Any, obs_pt: Any, obs: Any
+) -> tuple[Array, Array, Array]:
+    """Taichi twin of ``mslam_ref.ba.cameras.bal_linearize`` (parallel over O, fused)."""
+    args = (prepare(cameras, "cameras", 9), prepare(points, "points", 3), _idx(obs_cam),
+            _idx(obs_pt), prepare(obs, "obs", 2))  # fmt: skip
+    O = len(args[2])
+    r, Jc, Jp = _empty(O, 2), _empty(O, 2, 9), _empty(O, 2, 3)
+    if O:
+        _bal_lin_k(*args, r, Jc, Jp)
+    return r, Jc, Jp
+
+
+def _pin_args(poses, intrinsics, points, obs_cam, obs_pt, meas, is_stereo):
+    return (prepare(poses, "poses", 7), prepare(intrinsics, "intrinsics", 5),
+            prepare(points, "points", 3), _idx(obs_cam), _idx(obs_pt), prepare(meas, "meas", 3),
+            prepare(is_stereo, "is_stereo", None))  # fmt: skip
+
+
+def pinhole_residuals(
+    poses: Any,
+    intrinsics: Any,
+    points: Any,
+    obs_cam: Any,
+    obs_pt: Any,
+    meas: Any,
+    is_stereo: Any,
+) -> Array:
+    """Taichi twin of ``mslam_ref.ba.cameras.pinhole_residuals`` (parallel over O)."""
+    args = _pin_args(poses, intrinsics, points, obs_cam, obs_pt, meas, is_stereo)
+    r = _empty(len(args[3]), 3)
+    if len(r):
+        _pin_res_k(*args, r)
+    return r
+
+
+def pinhole_linearize(
+    poses: Any,
+    intrinsics: Any,
+    points: Any,
+    obs_cam: Any,
+    obs_pt: Any,
+    meas: Any,
+    is_stereo: Any,
+) -> tuple[Array, Array, Array]:
+    """Taichi twin of ``mslam_ref.ba.cameras.pinhole_linearize`` (parallel over O, fused)."""
+    args = _pin_args(poses, intrinsics, points, obs_cam, obs_pt, meas, is_stereo)
+    O = len(args[3])
+    r, Jc, Jp = _empty(O, 3), _empty(O, 3, 6), _empty(O, 3, 3)
+    if O:
+        _pin_lin_k(*args, r, Jc, Jp)
+    return r, Jc, Jp

@@ -1,0 +1,224 @@
+"""Taichi twin of ``mslam_ref.ba.schur`` — same names, parameters and shapes; see there for the maths.
+
+Parallel axes and reductions (no atomics anywhere; every sum runs in a ``ti.f64`` local over a
+CSR list built once by ``build_structure``, so results are deterministic):
+
+* ``normal_blocks``: W per observation (O items); U and bc per (camera, row) (M d items, each
+  summing the camera's observations); V and bl per point (P items).
+* ``schur_complement``: V^-1 per point (adjugate, P items); Y = W V^-1 and Y bl per observation
+  (O items); rhs per (camera, row); S per (block, row) over the block's observation pairs
+  (B d items).
+* ``back_substitute``: one point per item (P items).
+
+``build_structure``, ``dense_reduced`` and ``solve_reduced`` are the reference's host functions
+(the reduced Cholesky is a SciPy/LAPACK call), re-exported so the kernel set is complete.
+"""
+
+from typing import Any
+
+import numpy as np
+import taichi as ti
+from mslam_ref.ba.schur import (
+    DENSE_MAX,
+    BlockStructure,
+    build_structure,
+    dense_reduced,
+    solve_reduced,
+)
+
+from mslam_fast._kernels import ba as K
+from mslam_fast._runtime import ensure_init, prepare
+
+__all__ = [
+    "DENSE_MAX",
+    "BlockStructure",
+    "back_substitute",
+    "build_structure",
+    "dense_reduced",
+    "normal_blocks",
+    "schur_complement",
+    "solve_reduced",
+]
+
+Array = np.ndarray[Any, Any]
+nd = ti.types.ndarray()
+f64 = ti.f64
+
+
+@ti.kernel
+def _W_k(Jc: nd, Jp: nd, w: nd, W: nd, d: ti.template(), k: ti.template()):
+    for e in range(Jc.shape[0]):
+        for i in ti.static(range(d)):
+            for j in ti.static(range(3)):
+                acc = ti.cast(0.0, f64)
+                for m in ti.static(range(k)):
+                    acc += ti.cast(Jc[e, m, i] * Jp[e, m, j], f64)
+                W[e, i, j] = acc * w[e]
+
+
+@ti.kernel
+def _U_k(Jc: nd, w: nd, r: nd, ptr: nd, order: nd, U: nd, bc: nd, d: ti.template(),
+         k: ti.template()):  # fmt: skip
+    for c in range(U.shape[0]):  # one camera per item, its observations in CSR order
+        acc = ti.Matrix.zero(f64, d, d)
+        accb = ti.Vector.zero(f64, d)
+        for q in range(ti.cast(ptr[c], ti.i32), ti.cast(ptr[c + 1], ti.i32)):
+            e = order[q]
+            we = ti.cast(w[e], f64)
+            for m in ti.static(range(k)):
+                J = ti.Vector([ti.cast(Jc[e, m, i], f64) for i in ti.static(range(d))])
+                acc += (we * J).outer_product(J)
+                accb += (we * r[e, m]) * J
+        for i in ti.static(range(d)):
+            for j in ti.static(range(d)):
+                U[c, i, j] = acc[i, j]
+            bc[c, i] = -accb[i]
+
+
+@ti.kernel
+def _V_k(Jp: nd, w: nd, r: nd, ptr: nd, order: nd, V: nd, bl: nd, k: ti.template()):
+    for p in range(V.shape[0]):
+        acc = ti.Matrix.zero(f64, 3, 3)
+        accb = ti.Vector.zero(f64, 3)
+        for q in range(ti.cast(ptr[p], ti.i32), ti.cast(ptr[p + 1], ti.i32)):
+            e = order[q]
+            we = ti.cast(w[e], f64)
+            for m in ti.static(range(k)):
+                for i in ti.static(range(3)):
+                    a = we * Jp[e, m, i]
+                    accb[i] += a * r[e, m]
+                    for j in ti.static(range(3)):
+                        acc[i, j] += a * Jp[e, m, j]
+        for i in ti.static(range(3)):
+            bl[p, i] = -accb[i]
+            for j in ti.static(range(3)):
+                V[p, i, j] = acc[i, j]
+
+
+@ti.kernel
+def _vinv_k(V: nd, lam: f64, Vinv: nd):
+    for p in range(V.shape[0]):
+        A = ti.Matrix.zero(f64, 3, 3)
+        for i in ti.static(range(3)):
+            for j in ti.static(range(3)):
+                A[i, j] = V[p, i, j]
+            A[i, i] += lam
+        B = K.inv3(A)
+        for i in ti.static(range(3)):
+            for j in ti.static(range(3)):
+                Vinv[p, i, j] = B[i, j]
+
+
+@ti.kernel
+def _Y_k(W: nd, Vinv: nd, op: nd, bl: nd, Y: nd, t: nd, d: ti.template()):
+    for e in range(W.shape[0]):
+        p = op[e]
+        for i in ti.static(range(d)):
+            acc_t = ti.cast(0.0, f64)
+            for j in ti.static(range(3)):
+                acc = ti.cast(0.0, f64)
+                for m in ti.static(range(3)):
+                    acc += ti.cast(W[e, i, m] * Vinv[p, m, j], f64)
+                Y[e, i, j] = acc
+                acc_t += acc * bl[p, j]
+            t[e, i] = acc_t
+
+
+@ti.kernel
+def _rhs_k(bc: nd, t: nd, ptr: nd, order: nd, rhs: nd):
+    for c, i in ti.ndrange(bc.shape[0], bc.shape[1]):
+        acc = ti.cast(0.0, f64)
+        for q in range(ti.cast(ptr[c], ti.i32), ti.cast(ptr[c + 1], ti.i32)):
+            acc += t[order[q], i]
+        rhs[c, i] = bc[c, i] - acc
+
+
+@ti.kernel
+def _S_k(Y: nd, W: nd, U: nd, lam: f64, brow: nd, bcol: nd, pptr: nd, pa: nd, pb: nd, S: nd,
+         d: ti.template()):  # fmt: skip
+    for b in range(S.shape[0]):  # one d x d block per item: Y and W blocks are loaded once
+        acc = ti.Matrix.zero(f64, d, d)
+        for q in range(ti.cast(pptr[b], ti.i32), ti.cast(pptr[b + 1], ti.i32)):
+            a, c = pa[q], pb[q]
+            y = ti.Matrix([[Y[a, i, m] for m in ti.static(range(3))] for i in ti.static(range(d))])
+            w = ti.Matrix([[W[c, j, m] for m in ti.static(range(3))] for j in ti.static(range(d))])
+            acc -= ti.cast(y, f64) @ ti.cast(w, f64).transpose()
+        if brow[b] == bcol[b]:
+            for i in ti.static(range(d)):
+                for j in ti.static(range(d)):
+                    acc[i, j] += U[brow[b], i, j]
+                acc[i, i] += lam
+        for i in ti.static(range(d)):
+            for j in ti.static(range(d)):
+                S[b, i, j] = acc[i, j]
+
+
+@ti.kernel
+def _back_k(Vinv: nd, W: nd, bl: nd, dc: nd, ptr: nd, order: nd, oc: nd, dl: nd,
+            d: ti.template()):  # fmt: skip
+    for p in range(bl.shape[0]):
+        acc = ti.Vector([ti.cast(bl[p, m], f64) for m in ti.static(range(3))])
+        for q in range(ti.cast(ptr[p], ti.i32), ti.cast(ptr[p + 1], ti.i32)):
+            e = order[q]
+            c = oc[e]
+            for m in ti.static(range(3)):
+                s = ti.cast(0.0, f64)
+                for i in ti.static(range(d)):
+                    s += W[e, i, m] * dc[c, i]
+                acc[m] -= s
+        for m in ti.static(range(3)):
+            dl[p, m] = Vinv[p, m, 0] * acc[0] + Vinv[p, m, 1] * acc[1] + Vinv[p, m, 2] * acc[2]
+
+
+def _z(*shape: int) -> Array:
+    return np.zeros(shape, dtype=ensure_init().dtype)
+
+
+def normal_blocks(
+    r: Any, J_cam: Any, J_pt: Any, weight: Any, structure: BlockStructure
+) -> tuple[Array, Array, Array, Array, Array]:
+    """Taichi twin of ``mslam_ref.ba.schur.normal_blocks`` (W per observation, U/bc per
+    (camera, row), V/bl per point; f64 accumulation over CSR lists, no atomics)."""
+    s, d = structure, structure.cam_dof
+    r = prepare(r, "r", None)
+    k = r.shape[1]
+    Jc, Jp = prepare(J_cam, "J_cam", (k, d)), prepare(J_pt, "J_pt", (k, 3))
+    w = prepare(weight, "weight", None)
+    O, M, P = len(r), s.n_cams, s.n_points
+    U, V, W, bc, bl = _z(M, d, d), _z(P, 3, 3), _z(O, d, 3), _z(M, d), _z(P, 3)
+    if O:
+        _W_k(Jc, Jp, w, W, d, k)
+        _U_k(Jc, w, r, s.cam_ptr, s.cam_obs, U, bc, d, k)
+        _V_k(Jp, w, r, s.pt_ptr, s.pt_obs, V, bl, k)
+    return U, V, W, bc, bl
+
+
+def schur_complement(
+    U: Any, V: Any, W: Any, bc: Any, bl: Any, lam: float, structure: BlockStructure
+) -> tuple[Array, Array, Array]:
+    """Taichi twin of ``mslam_ref.ba.schur.schur_complement`` (V^-1 per point, Y per
+    observation, rhs per (camera, row), S per (block, row) over its pair list; f64 sums)."""
+    s, d = structure, structure.cam_dof
+    U, V = prepare(U, "U", (d, d)), prepare(V, "V", (3, 3))
+    W, bc, bl = prepare(W, "W", (d, 3)), prepare(bc, "bc", d), prepare(bl, "bl", 3)
+    O, M, P = len(W), s.n_cams, s.n_points
+    Vinv, Y, t, rhs = _z(P, 3, 3), _z(O, d, 3), _z(O, d), _z(M, d)
+    S = _z(len(s.block_row), d, d)
+    if P:
+        _vinv_k(V, float(lam), Vinv)
+    if O:
+        _Y_k(W, Vinv, s.obs_pt, bl, Y, t, d)
+    _rhs_k(bc, t, s.cam_ptr, s.cam_obs, rhs)
+    _S_k(Y, W, U, float(lam), s.block_row, s.block_col, s.pair_ptr, s.pair_a, s.pair_b, S, d)
+    return S, rhs, Vinv
+
+
+def back_substitute(Vinv: Any, W: Any, bl: Any, dc: Any, structure: BlockStructure) -> Array:
+    """Taichi twin of ``mslam_ref.ba.schur.back_substitute`` (one point per item)."""
+    s, d = structure, structure.cam_dof
+    Vinv, W = prepare(Vinv, "Vinv", (3, 3)), prepare(W, "W", (d, 3))
+    bl, dc = prepare(bl, "bl", 3), prepare(dc, "dc", d)
+    dl = _z(s.n_points, 3)
+    if s.n_points:
+        _back_k(Vinv, W, bl, dc, s.pt_ptr, s.pt_obs, s.obs_cam, dl, d)
+    return dl

@@ -1,0 +1,201 @@
+"""Taichi twin of ``mslam_ref.backend`` — same names, parameters and shapes; see there for the
+maths.
+
+``linearize``: one fused kernel over (directed block, pixel chunk) pairs, so both cores work
+even for a single block: per pixel k of j it gathers the matched point of i, moves X_j with
+``T_ij`` (computed once per chunk), forms the ray + distance (or, with K, pixel + log-depth
+on the ray-constrained points) residual, its local rows, ``J_j = J_loc Ad(T_WCi)^-1`` and the
+Huber weight, and accumulates ``W J_j J_j^T``, ``W e J_j`` and ``1/2 W e^2`` in float64 into
+its own row of a (D, n_chunks, 36) array (no atomics); the host sums the chunks. Since
+``J_i = -J_j`` exactly, ``H_ii = H_jj``, ``H_ij = H_ji = -H_jj`` and ``g_i = -g_j``.
+Per-pixel maths runs in the runtime float type, sums in float64.
+
+``solve`` is the reference Gauss-Newton driver (``mslam_ref.backend._solve_with``: sparse
+assembly, Cholesky, retraction on the host) with this linearisation.
+"""
+
+from typing import Any
+
+import numpy as np
+import taichi as ti
+
+from mslam_fast._kernels import sim3 as S
+from mslam_fast._kernels import tracking as KT
+from mslam_fast._runtime import ensure_init
+from mslam_ref import backend as _ref
+from mslam_ref import calib as _calib
+from mslam_ref.backend import (
+    BackendConfig,
+    BackendInfo,
+    assemble_system,
+    block_residual_and_jacobian,
+    directed_blocks,
+)
+
+__all__ = [
+    "BackendConfig",
+    "BackendInfo",
+    "assemble_system",
+    "block_residual_and_jacobian",
+    "directed_blocks",
+    "linearize",
+    "solve",
+]
+
+Array = np.ndarray[Any, Any]
+nd = ti.types.ndarray()
+
+#: Pixels per reduction chunk (one partial sum each).
+CHUNK = 1024
+
+
+@ti.func
+def _row(J, r):
+    return ti.Vector([J[r, b] for b in ti.static(range(7))])
+
+
+@ti.kernel
+def _linearize_k(
+    T: nd, X: nd, C: nd, ii: nd, jj: nd, idx: nd, valid: nd, Q: nd, prm: nd, out: nd,
+    calib: ti.template(),
+):
+    n = X.shape[1]
+    n_chunks = out.shape[1]
+    for d, c in ti.ndrange(out.shape[0], n_chunks):
+        acc = ti.Vector.zero(ti.f64, KT.NACC)
+        i = ii[d]
+        j = jj[d]
+        Ti = S.load(T, i, 8)
+        Tij = S.sim3_mul(S.sim3_inv(Ti), S.load(T, j, 8))
+        s1_inv = ti.cast(1.0 / prm[0], float)
+        s2_inv = ti.cast(1.0 / prm[1], float)
+        Q_conf, C_conf = ti.cast(prm[2], float), ti.cast(prm[3], float)
+        fx, fy = ti.cast(prm[4], float), ti.cast(prm[5], float)
+        cx, cy = ti.cast(prm[6], float), ti.cast(prm[7], float)
+        border, eps = ti.cast(prm[8], float), ti.cast(prm[9], float)
+        Wd = ti.cast(prm[10], ti.i32)
+        Hd = ti.cast(prm[11], ti.i32)
+        for k in range(c * CHUNK, ti.min(c * CHUNK + CHUNK, n)):
+            q = Q[d, k]
+            if valid[d, k] != 0 and q > Q_conf:
+                m = idx[d, k]
+                if C[i, m] > C_conf and C[j, k] > C_conf:
+                    sq = ti.sqrt(q)
+                    Xj = ti.Vector([X[j, k, 0], X[j, k, 1], X[j, k, 2]])
+                    if ti.static(calib):  # constrain X_j to the ray of pixel k
+                        zj = Xj[2]
+                        Xj = ti.Vector(
+                            [zj * (ti.cast(k % Wd, float) - cx) / fx,
+                             zj * (ti.cast(k // Wd, float) - cy) / fy, zj]
+                        )
+                    P = S.sim3_act(Tij, Xj)
+                    if ti.static(not calib):
+                        J, p, dd = KT.ray_dist_rows(P)
+                        pi, di = KT.unit_and_norm(ti.Vector([X[i, m, 0], X[i, m, 1], X[i, m, 2]]))
+                        for r in ti.static(range(4)):
+                            e = dd - di
+                            si = sq * s2_inv
+                            if ti.static(r < 3):
+                                e = p[r] - pi[r]
+                                si = sq * s1_inv
+                            Jj = S.sim3_adj_inv_apply(Ti, _row(J, r))
+                            KT.accumulate(acc, Jj, e, si * si * KT.huber(si * e, KT.HUBER_K), KT.DENSE)
+                    else:
+                        zi = X[i, m, 2]
+                        uv, J = KT.calib_rows(P, fx, fy, cx, cy)
+                        ok = (
+                            zi > eps
+                            and P[2] > eps
+                            and uv[0] > border
+                            and uv[0] < Wd - 1 - border
+                            and uv[1] > border
+                            and uv[1] < Hd - 1 - border
+                        )
+                        if ok:
+                            tgt = ti.Vector([ti.cast(m % Wd, float), ti.cast(m // Wd, float), ti.log(zi)])
+                            for r in ti.static(range(3)):
+                                e = uv[r] - tgt[r]
+                                si = sq * s2_inv
+                                if ti.static(r < 2):
+                                    si = sq * s1_inv
+                                Jj = S.sim3_adj_inv_apply(Ti, _row(J, r))
+                                w = si * si * KT.huber(si * e, KT.HUBER_K)
+                                KT.accumulate(acc, Jj, e, w, KT.DENSE)
+        for t in ti.static(range(18)):
+            out[d, c, t] = acc[t]
+        for t in ti.static(range(18, KT.NACC)):
+            out[d, c, t] = acc[t]
+
+
+def _params(cfg: BackendConfig, K: Array | None, H: int, W: int) -> Array:
+    if K is None:
+        s1, s2, f = cfg.sigma_ray, cfg.sigma_dist, (1.0, 1.0, 0.0, 0.0)
+    else:
+        s1, s2, f = cfg.sigma_pixel, cfg.sigma_depth, (K[0, 0], K[1, 1], K[0, 2], K[1, 2])
+    return np.array(
+        [s1, s2, cfg.Q_conf, cfg.C_conf, *f, cfg.pixel_border, cfg.depth_eps, W, H], np.float64
+    )
+
+
+def _linearize_with_cost(
+    T_WC: Any, X: Any, C: Any, ii: Any, jj: Any, idx: Any, valid: Any, Q: Any,
+    cfg: BackendConfig, K: Any,
+) -> tuple[Array, Array, float]:
+    """Kernel version of ``mslam_ref.backend._linearize_with_cost``. The ray constraint of
+    the calibrated mode is applied inside the kernel (idempotent), not on the host."""
+    T_WC, X, C, ii, jj, idx, valid, Q, _ = _ref._check_graph(T_WC, X, C, ii, jj, idx, valid, Q, None)
+    K = None if K is None else _calib.check_K(K)
+    dtype = ensure_init().dtype
+    n_kf, H, W = X.shape[:3]
+    D, N = len(ii), H * W
+    Hs, gs = np.zeros((D, 4, 7, 7)), np.zeros((D, 2, 7))
+    if D == 0:
+        return Hs, gs, 0.0
+    out = np.zeros((D, max(1, -(-N // CHUNK)), KT.NACC))
+    c = lambda a, s, t=dtype: np.ascontiguousarray(np.reshape(a, s), dtype=t)
+    _linearize_k(
+        c(T_WC, (n_kf, 8)), c(X, (n_kf, N, 3)), c(C, (n_kf, N)), c(ii, (D,), np.int32),
+        c(jj, (D,), np.int32), c(idx, (D, N), np.int32), c(valid, (D, N), np.uint8),
+        c(Q, (D, N)), _params(cfg, K, H, W), out, K is not None,
+    )
+    acc = out.sum(axis=1)
+    rows, cols = zip(*KT.TRI, strict=True)
+    Hjj = np.zeros((D, 7, 7))
+    Hjj[:, rows, cols] = acc[:, :28]
+    Hjj[:, cols, rows] = acc[:, :28]
+    Hs[:, 0], Hs[:, 1], Hs[:, 2], Hs[:, 3] = Hjj, -Hjj, -Hjj, Hjj
+    gs[:, 0], gs[:, 1] = -acc[:, 28:35], acc[:, 28:35]
+    return Hs, gs, float(acc[:, 35].sum())
+
+
+def linearize(
+    T_WC: Any,
+    X: Any,
+    C: Any,
+    ii: Any,
+    jj: Any,
+    idx: Any,
+    valid: Any,
+    Q: Any,
+    cfg: BackendConfig = BackendConfig(),  # noqa: B008 (frozen, immutable)
+    K: Any = None,
+) -> tuple[Array, Array]:
+    """Taichi twin of ``mslam_ref.backend.linearize`` (Hs, gs in float64)."""
+    Hs, gs, _ = _linearize_with_cost(T_WC, X, C, ii, jj, idx, valid, Q, cfg, K)
+    return Hs, gs
+
+
+def solve(
+    T_WC: Any,
+    X: Any,
+    C: Any,
+    ii: Any,
+    jj: Any,
+    idx: Any,
+    valid: Any,
+    Q: Any,
+    cfg: BackendConfig = BackendConfig(),  # noqa: B008
+    K: Any = None,
+) -> tuple[Array, BackendInfo]:
+    """Taichi twin of ``mslam_ref.backend.solve``: the reference driver, this linearize."""
+    return _ref._solve_with(_linearize_with_cost, T_WC, X, C, ii, jj, idx, valid, Q, cfg, K)

@@ -1,0 +1,240 @@
+"""Taichi twin of ``mslam_ref.matching`` — same names, parameters and shapes; see there for the maths.
+
+Parallel axis: one thread per target pixel n of image 2 (``ti.ndrange(B, N)``), no reductions.
+``match`` runs everything in one kernel call, so nothing goes back to the host between stages:
+loop 1 writes the unit rays into a (B, H, W, 9) scratch image, loop 2 their Scharr gradients,
+loop 3 runs per pixel the LM (10 iterations, all taps of the 9-channel image per sample, the
+accepted sample re-used by the next iteration), the truncation and distance test, and the
+descriptor refinement (245 dot products of length F, unrolled over F).
+
+Precision: points, rays and the LM follow the runtime float type (f64 or f32). Descriptor dot
+products run in the descriptors' float type after coercion to the runtime type and are compared
+with ``best`` in the runtime type (upstream uses fp16 here).
+"""
+
+from typing import Any
+
+import numpy as np
+import taichi as ti
+
+from mslam_fast._kernels import matching as K
+from mslam_fast._runtime import ensure_init
+from mslam_ref import matching as _ref
+from mslam_ref.matching import MatchingConfig
+
+__all__ = [
+    "MatchingConfig",
+    "iter_proj",
+    "match",
+    "ray_image_and_gradients",
+    "refine_matches",
+]
+
+Array = np.ndarray[Any, Any]
+nd = ti.types.ndarray()
+
+
+# --- kernels -------------------------------------------------------------------------------
+
+
+@ti.func
+def _ray_image(X: ti.template(), RG: ti.template()):
+    """Loops 1 and 2: unit rays into RG[..., 0:3], then their Scharr gradients into 3:9."""
+    B, H, W = X.shape[0], X.shape[1], X.shape[2]
+    for b, v, u in ti.ndrange(B, H, W):
+        R = K.normalize3(K.load3(X, b, v, u))
+        for c in ti.static(range(3)):
+            RG[b, v, u, c] = R[c]
+    for b, v, u in ti.ndrange(B, H, W):
+        for c in ti.static(range(3)):
+            gx, gy = K.scharr_at(RG, b, v, u, H, W, c)
+            RG[b, v, u, 3 + c] = gx
+            RG[b, v, u, 6 + c] = gy
+
+
+@ti.kernel
+def _rays_k(X: nd, RG: nd):
+    _ray_image(X, RG)
+
+
+@ti.kernel
+def _iter_proj_k(
+    RG: nd, X21: nd, P0: nd, P: nd, conv: nd, max_iter: ti.i32, lam0: float, thresh: float
+):
+    H, W = RG.shape[1], RG.shape[2]
+    for b, n in ti.ndrange(X21.shape[0], X21.shape[1]):
+        t = K.normalize3(ti.Vector([X21[b, n, 0], X21[b, n, 1], X21[b, n, 2]]))
+        u, v, c = K.lm_pixel(RG, b, t, P0[b, n, 0], P0[b, n, 1], H, W, max_iter, lam0, thresh)
+        P[b, n, 0] = u
+        P[b, n, 1] = v
+        conv[b, n] = ti.cast(c, ti.u8)
+
+
+@ti.kernel
+def _refine_k(D11: nd, D21: nd, P1: nd, out: nd, radius: ti.i32, dmax: ti.i32, F: ti.template()):
+    H, W = D11.shape[1], D11.shape[2]
+    for b, n in ti.ndrange(D21.shape[0], D21.shape[1]):
+        u, v = K.refine_pixel(
+            D11, D21, b, n, ti.cast(P1[b, n, 0], ti.i32), ti.cast(P1[b, n, 1], ti.i32),
+            H, W, radius, dmax, F,
+        )
+        out[b, n, 0] = u
+        out[b, n, 1] = v
+
+
+@ti.kernel
+def _match_k(
+    X11: nd, X21: nd, D11: nd, D21: nd, idx0: nd, use_init: ti.i32, RG: nd,
+    idx: nd, valid: nd, max_iter: ti.i32, lam0: float, thresh: float, dist_thresh: float,
+    radius: ti.i32, dmax: ti.i32, F: ti.template(),
+):
+    _ray_image(X11, RG)
+    H, W = X11.shape[1], X11.shape[2]
+    for b, n in ti.ndrange(X21.shape[0], X21.shape[1]):
+        i0 = n
+        if use_init != 0:
+            i0 = ti.cast(idx0[b, n], ti.i32)
+        X2 = ti.Vector([X21[b, n, 0], X21[b, n, 1], X21[b, n, 2]])
+        t = K.normalize3(X2)
+        u_f, v_f, conv = K.lm_pixel(
+            RG, b, t, ti.cast(i0 % W, float), ti.cast(i0 // W, float), H, W, max_iter, lam0,
+            thresh,
+        )
+        u, v = ti.cast(u_f, ti.i32), ti.cast(v_f, ti.i32)  # truncation (u_f, v_f >= 1)
+        X1 = K.load3(X11, b, v, u)
+        d = X1 - X2
+        ok = (
+            conv != 0
+            and ti.sqrt(K.dot3(d, d)) < dist_thresh
+            and ti.sqrt(K.dot3(X2, X2)) > K.NORM_EPS
+            and ti.sqrt(K.dot3(X1, X1)) > K.NORM_EPS
+        )
+        if radius > 0:
+            u, v = K.refine_pixel(D11, D21, b, n, u, v, H, W, radius, dmax, F)
+        idx[b, n] = ti.cast(u, ti.i64) + ti.cast(W, ti.i64) * ti.cast(v, ti.i64)
+        valid[b, n] = ti.cast(1 if ok else 0, ti.u8)
+
+
+# --- host wrappers -------------------------------------------------------------------------
+
+
+def _float(x: Any, name: str) -> Array:
+    """Contiguous runtime-dtype copy/view of a finite array (ValueError naming ``name``)."""
+    arr = np.ascontiguousarray(x, dtype=ensure_init().dtype)
+    # one cheap reduction first; the element-wise check only when the sum is not finite
+    if arr.size and not np.isfinite(arr.sum(dtype=np.float64)) and not np.isfinite(arr).all():
+        raise ValueError(f"{name}: contains non-finite values (NaN or inf)")
+    return arr
+
+
+def _points(x: Any) -> Array:
+    """Contiguous runtime-dtype points with non-finite points zeroed (as the reference)."""
+    arr = np.ascontiguousarray(x, dtype=ensure_init().dtype)
+    bad = ~np.isfinite(arr)
+    if bad.any():
+        arr = arr.copy()
+        arr[bad.any(axis=-1)] = 0.0
+    return arr
+
+
+def _flags(a: Array) -> Array:
+    return a.view(np.bool_)
+
+
+def ray_image_and_gradients(X11: Any) -> Array:
+    """Taichi twin of ``mslam_ref.matching.ray_image_and_gradients`` (two parallel loops)."""
+    X, _ = _ref._image_batch(X11, "X11", 3)
+    X = _points(X)
+    RG = np.empty((*X.shape[:-1], 9), dtype=X.dtype)
+    if X.shape[0] > 0:
+        _rays_k(X, RG)
+    return RG.reshape(*np.shape(X11)[:-1], 9)
+
+
+def iter_proj(
+    rays_with_grad: Any, X21: Any, p_init: Any, cfg: MatchingConfig = MatchingConfig()
+) -> tuple[Array, Array]:
+    """Taichi twin of ``mslam_ref.matching.iter_proj`` (one thread per target pixel)."""
+    RG, batched = _ref._image_batch(rays_with_grad, "rays_with_grad", 9)
+    RG = _float(RG, "rays_with_grad")
+    B = RG.shape[0]
+    lead = (B,) if batched else ()
+    t = np.asarray(X21)
+    if t.ndim != len(lead) + 2 or t.shape[:-2] != lead or t.shape[-1] != 3:
+        raise ValueError(f"X21: expected shape (N, 3), or (B, N, 3) with B={B}, got {t.shape}")
+    p0 = np.asarray(p_init)
+    if p0.shape != (*t.shape[:-1], 2):
+        raise ValueError(f"p_init: expected shape {(*t.shape[:-1], 2)}, got {p0.shape}")
+    t = _points(t).reshape(B, -1, 3)
+    p0 = _float(p0, "p_init").reshape(B, -1, 2)
+    P = np.empty_like(p0)
+    conv = np.zeros(p0.shape[:-1], dtype=np.uint8)
+    if P.size:
+        _iter_proj_k(
+            RG, t, p0, P, conv, int(cfg.max_iter), float(cfg.lambda_init),
+            float(cfg.convergence_thresh),
+        )
+    return (P, _flags(conv)) if batched else (P[0], _flags(conv[0]))
+
+
+def refine_matches(D11: Any, D21: Any, p1: Any, cfg: MatchingConfig = MatchingConfig()) -> Array:
+    """Taichi twin of ``mslam_ref.matching.refine_matches`` (245 unrolled dot products/thread)."""
+    D1, batched = _ref._image_batch(D11, "D11", None)
+    B, H, W, F = D1.shape
+    lead = (B,) if batched else ()
+    D2 = np.asarray(D21)
+    if D2.ndim != len(lead) + 2 or D2.shape[:-2] != lead or D2.shape[-1] != F:
+        raise ValueError(f"D21: expected shape (N, {F}) or (B, N, {F}), got {D2.shape}")
+    p = _ref._int_pixels(p1, "p1", (*D2.shape[:-1], 2), H, W).reshape(B, -1, 2)
+    D1, D2 = _float(D1, "D11"), _float(D2, "D21").reshape(B, -1, F)
+    out = np.empty_like(p)
+    if out.size:
+        _refine_k(D1, D2, p, out, int(cfg.radius), int(cfg.dilation_max), F)
+    return out if batched else out[0]
+
+
+def match(
+    X11: Any,
+    X21: Any,
+    D11: Any,
+    D21: Any,
+    idx_init: Any = None,
+    cfg: MatchingConfig = MatchingConfig(),
+) -> tuple[Array, Array]:
+    """Taichi twin of ``mslam_ref.matching.match`` (one fused kernel: rays, gradients, LM,
+    truncation, distance test, refinement)."""
+    X1, batched = _ref._image_batch(X11, "X11", 3)
+    X2, batched2 = _ref._image_batch(X21, "X21", 3)
+    if X2.shape != X1.shape or batched2 != batched:
+        raise ValueError(f"X21: expected the shape of X11 {np.shape(X11)}, got {np.shape(X21)}")
+    D1, _ = _ref._image_batch(D11, "D11", None)
+    D2, _ = _ref._image_batch(D21, "D21", None)
+    if D1.shape[:-1] != X1.shape[:-1] or np.ndim(D11) != np.ndim(X11):
+        raise ValueError(f"D11: expected shape {(*np.shape(X11)[:-1], 'F')}, got {np.shape(D11)}")
+    if D2.shape != D1.shape or np.ndim(D21) != np.ndim(D11):
+        raise ValueError(f"D21: expected the shape of D11 {np.shape(D11)}, got {np.shape(D21)}")
+    B, H, W, F = D1.shape
+    N = H * W
+    idx0 = np.zeros((1, 1), dtype=np.int64)
+    if idx_init is not None:
+        idx0 = np.asarray(idx_init)
+        if idx0.size and not np.issubdtype(idx0.dtype, np.integer):
+            raise ValueError(f"idx_init: expected integer indices, got dtype {idx0.dtype}")
+        want = (B, N) if batched else (N,)
+        if idx0.shape != want:
+            raise ValueError(f"idx_init: expected shape {want}, got {idx0.shape}")
+        idx0 = np.ascontiguousarray(idx0, dtype=np.int64).reshape(B, N)
+        if idx0.size and (idx0.min() < 0 or idx0.max() >= N):
+            raise ValueError(f"idx_init: indices must lie in [0, {N})")
+    X1, X2 = _points(X1), _points(X2).reshape(B, N, 3)
+    D1, D2 = _float(D1, "D11"), _float(D2, "D21").reshape(B, N, F)
+    idx = np.empty((B, N), dtype=np.int64)
+    valid = np.empty((B, N), dtype=np.uint8)
+    if B > 0:
+        RG = np.empty((B, H, W, 9), dtype=X1.dtype)
+        _match_k(
+            X1, X2, D1, D2, idx0, int(idx_init is not None), RG, idx, valid,
+            int(cfg.max_iter), float(cfg.lambda_init), float(cfg.convergence_thresh),
+            float(cfg.dist_thresh), int(cfg.radius), int(cfg.dilation_max), F,
+        )
+    return (idx, _flags(valid)) if batched else (idx[0], _flags(valid[0]))

@@ -1,0 +1,180 @@
+"""Taichi twin of ``mslam_ref.tracking`` — same names, parameters and shapes; see there for
+the maths.
+
+``linearize``: one fused kernel computes, per keyframe pixel, the residual (ray + distance, or
+pixel + log-depth with K), its Jacobian, the sqrt information and the per-component Huber
+weight, and accumulates ``W J J^T`` (upper triangle), ``W r J`` and ``1/2 W r^2``.
+Parallel axis: chunks of :data:`CHUNK` pixels, one thread per chunk; each chunk sums into its
+own row of an (n_chunks, 36) float64 array (no atomics), the host sums the rows in chunk order.
+Residuals and Jacobians run in the runtime float type, every sum in float64.
+
+``solve`` is the reference IRLS driver (``mslam_ref.tracking._solve_with``) with this
+``linearize``; inputs are validated and converted once, not per iteration. The frontend
+helpers (masks, match quality, keyframe test) are host code shared with the reference.
+"""
+
+from typing import Any
+
+import numpy as np
+import taichi as ti
+
+from mslam_fast._kernels import sim3 as S
+from mslam_fast._kernels import tracking as KT
+from mslam_fast._runtime import ensure_init
+from mslam_ref import sim3 as _sim3
+from mslam_ref import tracking as _ref
+from mslam_ref.tracking import (
+    TrackingConfig,
+    TrackingInfo,
+    match_fraction,
+    match_quality,
+    needs_new_keyframe,
+    tracking_masks,
+)
+
+__all__ = [
+    "TrackingConfig",
+    "TrackingInfo",
+    "linearize",
+    "match_fraction",
+    "match_quality",
+    "needs_new_keyframe",
+    "solve",
+    "tracking_masks",
+]
+
+Array = np.ndarray[Any, Any]
+nd = ti.types.ndarray()
+
+#: Pixels per reduction chunk (one partial sum each).
+CHUNK = 1024
+
+
+@ti.func
+def _row(J, r):
+    return ti.Vector([J[r, b] for b in ti.static(range(7))])
+
+
+@ti.kernel
+def _linearize_k(T: nd, Xf: nd, Xk: nd, Q: nd, valid: nd, prm: nd, out: nd, calib: ti.template()):
+    n = Xf.shape[0]
+    for c in range(out.shape[0]):
+        acc = ti.Vector.zero(ti.f64, KT.NACC)
+        Tv = S.load(T, 0, 8)
+        s1_inv = ti.cast(1.0 / prm[0], float)
+        s2_inv = ti.cast(1.0 / prm[1], float)
+        hk = ti.cast(prm[2], float)
+        for k in range(c * CHUNK, ti.min(c * CHUNK + CHUNK, n)):
+            if valid[k] != 0:
+                sq = ti.sqrt(Q[k])
+                P = S.sim3_act(Tv, S.load(Xf, k, 3))
+                if ti.static(not calib):
+                    J, p, d = KT.ray_dist_rows(P)
+                    pk, dk = KT.unit_and_norm(S.load(Xk, k, 3))
+                    for r in ti.static(range(4)):
+                        e = dk - d
+                        si = sq * s2_inv
+                        if ti.static(r < 3):
+                            e = pk[r] - p[r]
+                            si = sq * s1_inv
+                        zero = ti.static(KT.ZERO_RAY if r < 3 else KT.ZERO_DIST)
+                        KT.accumulate(acc, _row(J, r), e, si * si * KT.huber(si * e, hk), zero)
+                else:
+                    fx, fy = ti.cast(prm[3], float), ti.cast(prm[4], float)
+                    cx, cy = ti.cast(prm[5], float), ti.cast(prm[6], float)
+                    border, eps = ti.cast(prm[7], float), ti.cast(prm[8], float)
+                    Wd = ti.cast(prm[9], ti.i32)
+                    Hd = ti.cast(prm[10], ti.i32)
+                    zk = Xk[k, 2]
+                    uv, J = KT.calib_rows(P, fx, fy, cx, cy)
+                    ok = (
+                        zk > eps
+                        and P[2] > eps
+                        and uv[0] > border
+                        and uv[0] < Wd - 1 - border
+                        and uv[1] > border
+                        and uv[1] < Hd - 1 - border
+                    )
+                    if ok:
+                        meas = ti.Vector([ti.cast(k % Wd, float), ti.cast(k // Wd, float), ti.log(zk)])
+                        for r in ti.static(range(3)):
+                            e = meas[r] - uv[r]
+                            si = sq * s2_inv
+                            if ti.static(r < 2):
+                                si = sq * s1_inv
+                            w = si * si * KT.huber(si * e, hk)
+                            KT.accumulate(acc, _row(J, r), e, w, KT.ZERO_CALIB[r])
+        KT.store_acc(out, c, acc)
+
+
+def _unpack(acc: Array) -> tuple[Array, Array, float]:
+    """(36,) accumulator -> symmetric H (7, 7), g (7,), cost."""
+    Hm = np.zeros((7, 7))
+    rows, cols = zip(*KT.TRI, strict=True)
+    Hm[rows, cols] = acc[:28]
+    Hm[cols, rows] = acc[:28]
+    return Hm, acc[28:35].copy(), float(acc[35])
+
+
+def _prepared(X_f: Array, X_k: Array, Q: Array, valid: Array) -> tuple[Array, Array, Array, Array]:
+    dtype = ensure_init().dtype
+    c = lambda a, s: np.ascontiguousarray(a.reshape(s), dtype=dtype)
+    return c(X_f, (-1, 3)), c(X_k, (-1, 3)), c(Q, (-1,)), np.ascontiguousarray(valid, np.uint8)
+
+
+def _params(cfg: TrackingConfig, K: Array | None, shape: tuple[int, ...]) -> Array:
+    if K is None:
+        return np.array([cfg.sigma_ray, cfg.sigma_dist, cfg.huber] + [0.0] * 8)
+    H, W = shape[:2]
+    return np.array(
+        [cfg.sigma_pixel, cfg.sigma_depth, cfg.huber, K[0, 0], K[1, 1], K[0, 2], K[1, 2],
+         cfg.pixel_border, cfg.depth_eps, W, H],
+        dtype=np.float64,
+    )
+
+
+def _linearize_prepared(
+    T: Array, X_f: Array, X_k: Array, Q: Array, valid: Array, cfg: TrackingConfig, K: Any,
+    shape: tuple[int, ...],
+) -> tuple[Array, Array, float]:
+    """Kernel call on inputs already validated and converted by :func:`_prepared`."""
+    n = len(X_f)
+    n_chunks = max(1, -(-n // CHUNK))
+    out = np.zeros((n_chunks, KT.NACC))
+    if n:
+        T_ = np.ascontiguousarray(np.asarray(T, np.float64).reshape(1, 8), dtype=X_f.dtype)
+        _linearize_k(T_, X_f, X_k, Q, valid, _params(cfg, K, shape), out, K is not None)
+    return _unpack(out.sum(axis=0))
+
+
+def linearize(
+    T_CkCf: Any,
+    X_f: Any,
+    X_k: Any,
+    Q: Any,
+    valid: Any,
+    cfg: TrackingConfig = TrackingConfig(),  # noqa: B008 (frozen, immutable)
+    K: Any = None,
+) -> tuple[Array, Array, float]:
+    """Taichi twin of ``mslam_ref.tracking.linearize`` (H, g, cost in float64)."""
+    X_f, X_k, Q, valid, K = _ref._check_problem(X_f, X_k, Q, valid, K)
+    T = _sim3.validate(T_CkCf, "T_CkCf")
+    if T.shape != (8,):
+        raise ValueError(f"T_CkCf: expected shape (8,), got {T.shape}")
+    return _linearize_prepared(T, *_prepared(X_f, X_k, Q, valid), cfg, K, X_k.shape)
+
+
+def solve(
+    X_f: Any,
+    X_k: Any,
+    Q: Any,
+    valid: Any,
+    T_CkCf_init: Any,
+    cfg: TrackingConfig = TrackingConfig(),  # noqa: B008
+    K: Any = None,
+) -> tuple[Array, TrackingInfo]:
+    """Taichi twin of ``mslam_ref.tracking.solve``: the reference driver, this linearize."""
+    X_f, X_k, Q, valid, K = _ref._check_problem(X_f, X_k, Q, valid, K)
+    shape = X_k.shape
+    lin = lambda T, Xf, Xk, Qp, vp, c, KK: _linearize_prepared(T, Xf, Xk, Qp, vp, c, KK, shape)
+    return _ref._solve_with(lin, *_prepared(X_f, X_k, Q, valid), T_CkCf_init, cfg, K)

@@ -1,0 +1,418 @@
+"""Paper §3.5 — Backend: global Gauss-Newton over all keyframe poses of the graph.
+
+Every graph edge (i, j) holds matches both ways; it gives two *directed blocks*. Block
+(i <- j) loops over the pixels k of keyframe j, moves their canonical points into camera i
+with ``T_ij = T_WCi^-1 T_WCj`` and compares them with the canonical point of the matched
+pixel ``m = idx[k]`` of keyframe i: a ray + distance error without calibration, a pixel +
+log-depth error with known K (spec §8.2). Only poses are optimised (pointmaps are fixed).
+Each block contributes a 14x14 Hessian block ``[[H_ii, H_ij], [H_ji, H_jj]]`` and gradient
+``[g_i, g_j]``; they are summed into a sparse 7(K'-1) system over the K' keyframes in the
+graph, the first of which is held fixed (the gauge), solved by Cholesky and applied by left
+retraction, ten times (spec §8.3).
+
+Sign convention (gn_kernels.cu): ``e = prediction - measurement``, ``J = de/dxi`` for left
+perturbations of the *world* poses, ``g = J^T W e`` and the step ``dx = -H^-1 g``.
+With ``J_loc = de/d(left perturbation at P)``, ``J_j = J_loc Ad(T_WCi)^-1`` and ``J_i = -J_j``.
+
+In calibrated mode (K given) the pointmaps are constrained to their rays *inside*
+:func:`linearize` and :func:`solve`, as upstream's ``solve_GN_calib`` does; the constraint is
+idempotent, so a caller that already constrained them loses nothing.
+
+Public names, in reading order:
+    BackendConfig, BackendInfo, directed_blocks, block_residual_and_jacobian, linearize,
+    assemble_system, solve
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+import scipy.linalg
+import scipy.sparse
+import scipy.sparse.linalg
+
+from mslam_ref import calib, robust, sim3
+from mslam_ref.conventions import BoolArray, FloatArray, IntArray, as_float_array
+
+__all__ = [
+    "BackendConfig",
+    "BackendInfo",
+    "assemble_system",
+    "block_residual_and_jacobian",
+    "directed_blocks",
+    "linearize",
+    "solve",
+]
+
+#: Huber threshold of the backend (hard-coded in gn_kernels.cu).
+HUBER_K = robust.HUBER_K
+
+#: Above this many unknowns the system is factorised with sparse LU instead of dense Cholesky
+#: (7 x 511, upstream's keyframe buffer of 512 with one pose fixed).
+DENSE_MAX = 7 * 511
+
+
+@dataclasses.dataclass(frozen=True)
+class BackendConfig:
+    """Upstream's ``local_opt.*`` keys (config/base.yaml) with their defaults
+    (``window_size`` and ``use_cuda`` are read but unused upstream)."""
+
+    pin: int = 1
+    window_size: float = 1e6
+    C_conf: float = 0.0
+    Q_conf: float = 1.5
+    min_match_frac: float = 0.1
+    pixel_border: int = -10
+    depth_eps: float = 1e-6
+    max_iters: int = 10
+    sigma_ray: float = 0.003
+    sigma_dist: float = 10.0
+    sigma_pixel: float = 1.0
+    sigma_depth: float = 10.0
+    sigma_point: float = 0.05
+    delta_norm: float = 1e-8
+    use_cuda: bool = True
+
+
+@dataclasses.dataclass(frozen=True)
+class BackendInfo:
+    """Outcome of :func:`solve`.
+
+    Attributes:
+        iterations: Gauss-Newton iterations run.
+        costs: robust cost ``1/2 sum W e^2`` of every iteration, before its update.
+        step_norms: ``|dx|`` of every iteration.
+        failed: iterations whose factorisation failed (a zero step, as upstream).
+        keyframes: the sorted keyframe indices in the graph; ``keyframes[:pin]`` stay fixed.
+    """
+
+    iterations: int
+    costs: tuple[float, ...]
+    step_norms: tuple[float, ...]
+    failed: int
+    keyframes: tuple[int, ...]
+
+    @property
+    def cost(self) -> float:
+        """The cost of the last iteration (0.0 when nothing ran)."""
+        return self.costs[-1] if self.costs else 0.0
+
+
+def directed_blocks(
+    ii: IntArray,
+    jj: IntArray,
+    idx_i2j: IntArray,
+    idx_j2i: IntArray,
+    valid_match_j: BoolArray,
+    valid_match_i: BoolArray,
+    Q_j: FloatArray,
+    Q_i: FloatArray,
+) -> tuple[IntArray, IntArray, IntArray, BoolArray, FloatArray]:
+    """Two directed blocks per stored edge (upstream global_opt.py::prep_two_way_edges).
+
+    Edge e = (i, j) gives (i <- j) with ``idx_i2j, valid_match_j, Q_j`` over the pixels of j,
+    then (j <- i) with ``idx_j2i, valid_match_i, Q_i`` over the pixels of i.
+
+    Args:
+        ii, jj: (E,) keyframe indices; idx_*: (E, N) int; valid_*: (E, N) bool; Q_*: (E, N).
+
+    Returns:
+        ii_d, jj_d: (2E,); idx: (2E, N); valid: (2E, N); Q: (2E, N).
+    """
+    ii, jj = np.asarray(ii, np.int64).reshape(-1), np.asarray(jj, np.int64).reshape(-1)
+    cat = lambda a, b: np.concatenate([np.asarray(a), np.asarray(b)], axis=0)
+    return (
+        cat(ii, jj),
+        cat(jj, ii),
+        cat(idx_i2j, idx_j2i).astype(np.int64),
+        cat(valid_match_j, valid_match_i).astype(bool),
+        cat(Q_j, Q_i).astype(np.float64),
+    )
+
+
+def block_residual_and_jacobian(
+    T_WCi: FloatArray,
+    T_WCj: FloatArray,
+    X_i: FloatArray,
+    X_j: FloatArray,
+    C_i: FloatArray,
+    C_j: FloatArray,
+    idx: IntArray,
+    valid: BoolArray,
+    Q: FloatArray,
+    cfg: BackendConfig = BackendConfig(),  # noqa: B008 (frozen, immutable)
+    K: FloatArray | None = None,
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """Residuals, pose Jacobians and sqrt weights of one directed block (i <- j).
+
+    Paper: §3.5, Eq. (11). Upstream: gn_kernels.cu::ray_align_kernel / calib_proj_kernel.
+
+        m = idx[k] if valid[k] else 0,  P = T_WCi^-1 T_WCj · Xj[k]
+        ok = valid & q > Q_conf & C_i[m] > C_conf & C_j[k] > C_conf
+        ray:   e = [psi(P) - psi(Xi[m]), |P| - |Xi[m]|],   w = ok sqrt(q) [1/s_ray x3, 1/s_dist]
+        calib: e = [u - m mod W, v - m div W, log P_z - log Xi_z[m]],
+               w = ok valid_uv valid_z sqrt(q) [1/s_pixel x2, 1/s_depth]
+        J_loc = de/dP [I | -[P]x | P],  J_j = J_loc Ad(T_WCi)^-1,  J_i = -J_j
+
+    Args:
+        T_WCi, T_WCj: (8,) world poses.
+        X_i, X_j: (H, W, 3) canonical pointmaps (ray-constrained by the caller when K given).
+        C_i, C_j: (H, W) average confidences.
+        idx: (N,) pixel of i matched to each pixel of j; valid: (N,) bool; Q: (N,) quality.
+        cfg: backend configuration.
+        K: None (ray + distance) or (3, 3) intrinsics (pixel + log-depth).
+
+    Returns:
+        e: (N, c); J_i: (N, c, 7); J_j: (N, c, 7); w: (N, c) sqrt weights (0 where invalid),
+        with c = 4 (ray) or 3 (calibrated). Rows with w = 0 may hold any finite value.
+    """
+    H, W = X_j.shape[:2]
+    Xi, Xj = X_i.reshape(-1, 3), X_j.reshape(-1, 3)
+    m = np.where(valid, idx, 0)
+    Xim = Xi[m]
+    ok = valid & (Q > cfg.Q_conf) & (C_i.reshape(-1)[m] > cfg.C_conf) & (C_j.reshape(-1) > cfg.C_conf)
+    sq = np.sqrt(np.maximum(Q, 0.0)) * ok
+    P, dP = sim3.act_and_jacobian(sim3.mul(sim3.inv(T_WCi), T_WCj), Xj)
+    if K is None:
+        d = np.linalg.norm(P, axis=-1)
+        d_safe = np.where(d > 0.0, d, 1.0)
+        psi = P / d_safe[:, None]
+        di = np.linalg.norm(Xim, axis=-1)
+        psi_i = Xim / np.where(di > 0.0, di, 1.0)[:, None]
+        e = np.concatenate([psi - psi_i, (d - di)[:, None]], axis=1)
+        dpsi = (np.eye(3) - psi[:, :, None] * psi[:, None, :]) / d_safe[:, None, None]
+        de_dP = np.concatenate([dpsi, psi[:, None, :]], axis=1)
+        w = sq[:, None] / np.array([cfg.sigma_ray] * 3 + [cfg.sigma_dist])
+    else:
+        pz, de_dP, valid_proj = calib.project_calib_and_jacobian(
+            P, K, (H, W), cfg.pixel_border, cfg.depth_eps
+        )
+        zi = Xim[:, 2]
+        valid_zi = zi > cfg.depth_eps
+        target = np.stack([m % W, m // W, np.log(np.where(valid_zi, zi, 1.0))], -1)
+        e = np.where(valid_zi[:, None], pz - target, 0.0)
+        w = (sq * valid_proj * valid_zi)[:, None] / np.array(
+            [cfg.sigma_pixel] * 2 + [cfg.sigma_depth]
+        )
+    J_loc = de_dP @ dP
+    J_j = sim3.adjoint_inv_apply(T_WCi, J_loc)
+    return e, -J_j, J_j, w
+
+
+def _check_graph(
+    T_WC: Any, X: Any, C: Any, ii: Any, jj: Any, idx: Any, valid: Any, Q: Any, K: Any
+) -> tuple[FloatArray, FloatArray, FloatArray, IntArray, IntArray, IntArray, BoolArray, FloatArray, Any]:
+    """Validate linearize/solve inputs; returns arrays (X ray-constrained when K given)."""
+    T_WC = sim3.validate(T_WC, "T_WC")
+    X = as_float_array(X, "X", 3)
+    if T_WC.ndim != 2 or X.ndim != 4 or len(X) != len(T_WC):
+        raise ValueError(f"T_WC, X: expected (K, 8) and (K, H, W, 3), got {T_WC.shape}, {X.shape}")
+    C = as_float_array(C, "C")
+    if C.shape != X.shape[:-1]:
+        raise ValueError(f"C: expected shape {X.shape[:-1]}, got {C.shape}")
+    n_kf, n_pix = len(X), X.shape[1] * X.shape[2]
+    ii, jj = (np.asarray(a).reshape(-1) for a in (ii, jj))
+    for name, a in (("ii", ii), ("jj", jj)):
+        if not np.issubdtype(a.dtype, np.integer) or (len(a) and (a.min() < 0 or a.max() >= n_kf)):
+            raise ValueError(f"{name}: expected integer keyframe indices in [0, {n_kf})")
+    D = len(ii)
+    if len(jj) != D:
+        raise ValueError(f"jj: expected {D} entries like ii, got {len(jj)}")
+    idx = np.asarray(idx)
+    if idx.shape != (D, n_pix) or not np.issubdtype(idx.dtype, np.integer):
+        raise ValueError(f"idx: expected integer shape {(D, n_pix)}, got {idx.dtype} {idx.shape}")
+    if D and (idx.min() < 0 or idx.max() >= n_pix):
+        raise ValueError(f"idx: pixel indices must lie in [0, {n_pix})")
+    valid = np.asarray(valid)
+    if valid.shape != (D, n_pix):
+        raise ValueError(f"valid: expected shape {(D, n_pix)}, got {valid.shape}")
+    Q = as_float_array(Q, "Q")
+    if Q.shape != (D, n_pix):
+        raise ValueError(f"Q: expected shape {(D, n_pix)}, got {Q.shape}")
+    if K is not None:
+        K = calib.check_K(K)
+        X = calib.constrain_points_to_ray(X, K)
+    return T_WC, X, C, ii.astype(np.int64), jj.astype(np.int64), idx.astype(np.int64), valid.astype(bool), Q, K
+
+
+def _linearize_with_cost(
+    T_WC: Any, X: Any, C: Any, ii: Any, jj: Any, idx: Any, valid: Any, Q: Any,
+    cfg: BackendConfig, K: Any,
+) -> tuple[FloatArray, FloatArray, float]:
+    """:func:`linearize` plus the total robust cost ``1/2 sum W e^2`` (for the driver)."""
+    T_WC, X, C, ii, jj, idx, valid, Q, K = _check_graph(T_WC, X, C, ii, jj, idx, valid, Q, K)
+    D = len(ii)
+    Hs, gs, cost = np.zeros((D, 4, 7, 7)), np.zeros((D, 2, 7)), 0.0
+    for d in range(D):  # blocks (few), each vectorised over its N pixels
+        i, j = ii[d], jj[d]
+        e, J_i, J_j, w = block_residual_and_jacobian(
+            T_WC[i], T_WC[j], X[i], X[j], C[i], C[j], idx[d], valid[d], Q[d], cfg, K
+        )
+        W = robust.huber_weight(w * e, HUBER_K) * w * w  # (N, c)
+        sW = np.sqrt(W)
+        A_i, A_j = (sW[..., None] * J_i).reshape(-1, 7), (sW[..., None] * J_j).reshape(-1, 7)
+        b = (sW * e).reshape(-1)
+        Hs[d] = [A_i.T @ A_i, A_i.T @ A_j, A_j.T @ A_i, A_j.T @ A_j]
+        gs[d] = [A_i.T @ b, A_j.T @ b]
+        cost += 0.5 * float(b @ b)
+    return Hs, gs, cost
+
+
+def linearize(
+    T_WC: FloatArray,
+    X: FloatArray,
+    C: FloatArray,
+    ii: IntArray,
+    jj: IntArray,
+    idx: IntArray,
+    valid: BoolArray,
+    Q: FloatArray,
+    cfg: BackendConfig = BackendConfig(),  # noqa: B008
+    K: FloatArray | None = None,
+) -> tuple[FloatArray, FloatArray]:
+    """Hessian blocks and gradients of D directed blocks.
+
+    Paper: §3.5, Eq. (11)-(12). Upstream: gn_kernels.cu::ray_align_kernel /
+    calib_proj_kernel (the per-block reduction). Per pixel and residual component c:
+
+        W_c = huber(w_c e_c) w_c^2        (Huber per component, k = 1.345)
+        H_ii += W_c J_i^T J_i,  H_ij += W_c J_i^T J_j,  H_ji = H_ij^T,  H_jj += W_c J_j^T J_j
+        g_i += W_c e_c J_i,     g_j += W_c e_c J_j
+
+    Args:
+        T_WC: (K, 8) keyframe poses (camera to world).
+        X: (K, H, W, 3) canonical pointmaps (constrained to rays here when K is given).
+        C: (K, H, W) average confidences ``C / N``.
+        ii, jj: (D,) keyframe indices of each directed block (i <- j).
+        idx: (D, N) pixel of i matched to each pixel of j; valid: (D, N); Q: (D, N).
+        cfg: backend configuration.
+        K: None for ray + distance, (3, 3) intrinsics for pixel + log-depth.
+
+    Returns:
+        Hs: (D, 4, 7, 7) ``[H_ii, H_ij, H_ji, H_jj]``; gs: (D, 2, 7) ``[g_i, g_j]``.
+    """
+    Hs, gs, _ = _linearize_with_cost(T_WC, X, C, ii, jj, idx, valid, Q, cfg, K)
+    return Hs, gs
+
+
+def assemble_system(
+    Hs: FloatArray, gs: FloatArray, pos_i: IntArray, pos_j: IntArray, n: int
+) -> tuple[scipy.sparse.csr_matrix, FloatArray]:
+    """Sum the blocks into the sparse 7n x 7n matrix and the 7n right-hand side.
+
+    Upstream: gn_kernels.cu::SparseBlock::update_lhs / update_rhs (Eigen triplets; duplicate
+    entries summed; blocks touching a fixed pose, position < 0, skipped).
+
+    Args:
+        Hs: (D, 4, 7, 7); gs: (D, 2, 7).
+        pos_i, pos_j: (D,) positions of the block's poses among the unknowns (-1: fixed).
+        n: number of free poses.
+
+    Returns:
+        A: (7n, 7n) CSR matrix; b: (7n,).
+    """
+    rows, cols, vals = [], [], []
+    r7 = np.arange(7)
+    b = np.zeros(7 * n)
+    for k, (p, q) in enumerate(((0, 0), (0, 1), (1, 0), (1, 1))):
+        pa = (pos_i, pos_j)[p]
+        pb = (pos_i, pos_j)[q]
+        keep = (pa >= 0) & (pb >= 0)
+        rr = 7 * pa[keep, None, None] + r7[None, :, None]
+        cc = 7 * pb[keep, None, None] + r7[None, None, :]
+        rows.append(np.broadcast_to(rr, (keep.sum(), 7, 7)).ravel())
+        cols.append(np.broadcast_to(cc, (keep.sum(), 7, 7)).ravel())
+        vals.append(Hs[keep, k].ravel())
+    for s, pa in enumerate((pos_i, pos_j)):
+        keep = pa >= 0
+        np.add.at(b, (7 * pa[keep, None] + r7).ravel(), gs[keep, s].ravel())
+    A = scipy.sparse.coo_matrix(
+        (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(7 * n, 7 * n)
+    ).tocsr()  # duplicates summed
+    return A, b
+
+
+def _factor_solve(A: scipy.sparse.csr_matrix, b: FloatArray) -> FloatArray | None:
+    """``-A^-1 b`` by dense Cholesky (sparse LU above DENSE_MAX unknowns); None on failure."""
+    try:
+        if A.shape[0] <= DENSE_MAX:
+            dx = -scipy.linalg.cho_solve(scipy.linalg.cho_factor(A.toarray(), lower=True), b)
+        else:
+            dx = -scipy.sparse.linalg.splu(A.tocsc()).solve(b)
+    except (np.linalg.LinAlgError, RuntimeError, ValueError):
+        return None
+    return dx if np.all(np.isfinite(dx)) else None
+
+
+LinearizeFn = Callable[..., tuple[FloatArray, FloatArray, float]]
+
+
+def _solve_with(
+    linearize_fn: LinearizeFn,
+    T_WC: Any, X: Any, C: Any, ii: Any, jj: Any, idx: Any, valid: Any, Q: Any,
+    cfg: BackendConfig, K: Any,
+) -> tuple[FloatArray, BackendInfo]:
+    """The Gauss-Newton driver shared by the reference and the Taichi ``solve``;
+    ``linearize_fn`` returns (Hs, gs, cost) like ``_linearize_with_cost``."""
+    T_WC, X, C, ii, jj, idx, valid, Q, K = _check_graph(T_WC, X, C, ii, jj, idx, valid, Q, K)
+    T = T_WC.copy()
+    kf = np.unique(np.concatenate([ii, jj]))
+    pin = int(cfg.pin)
+    if len(kf) <= pin:
+        return T, BackendInfo(0, (), (), 0, tuple(int(k) for k in kf))
+    pos_i, pos_j = np.searchsorted(kf, ii) - pin, np.searchsorted(kf, jj) - pin
+    n = len(kf) - pin
+    free = kf[pin:]
+    costs, norms, failed = [], [], 0
+    for _ in range(int(cfg.max_iters)):
+        Hs, gs, cost = linearize_fn(T, X, C, ii, jj, idx, valid, Q, cfg, K)
+        A, b = assemble_system(np.asarray(Hs, np.float64), np.asarray(gs, np.float64), pos_i, pos_j, n)
+        dx = _factor_solve(A, b)
+        if dx is None:
+            failed += 1
+            dx = np.zeros(7 * n)
+        T[free] = sim3.retract(T[free], dx.reshape(n, 7))
+        costs.append(float(cost))
+        norms.append(float(np.linalg.norm(dx)))
+        if norms[-1] < cfg.delta_norm:
+            break
+    return T, BackendInfo(len(costs), tuple(costs), tuple(norms), failed, tuple(int(k) for k in kf))
+
+
+def solve(
+    T_WC: FloatArray,
+    X: FloatArray,
+    C: FloatArray,
+    ii: IntArray,
+    jj: IntArray,
+    idx: IntArray,
+    valid: BoolArray,
+    Q: FloatArray,
+    cfg: BackendConfig = BackendConfig(),  # noqa: B008
+    K: FloatArray | None = None,
+) -> tuple[FloatArray, BackendInfo]:
+    """Global Gauss-Newton over the poses of the keyframes in the graph.
+
+    Paper: §3.5. Upstream: global_opt.py::FactorGraph.solve_GN_rays / solve_GN_calib,
+    gn_kernels.cu::gauss_newton_rays / gauss_newton_calib.
+
+        kf = sorted unique(ii ∪ jj); kf[:pin] fixed (gauge; upstream pin = 1)
+        repeat max_iters (10):
+            Hs, gs = linearize(T);  A, b = assemble_system(...)   (7(K'-pin) unknowns)
+            dx = -A^-1 b  (Cholesky; dx = 0 if it fails);  T_WC[kf[pin:]] <- Exp(dx) T_WC
+            stop if |dx| < delta_norm (1e-8: in practice all iterations run)
+
+    No damping (as upstream). The dense Cholesky of ``A.toarray()`` is used up to 7 x 511
+    unknowns (upstream's 512-keyframe buffer), sparse LU beyond. Keyframes not in the graph
+    keep their pose.
+
+    Args:
+        as :func:`linearize`.
+
+    Returns:
+        T_WC: (K, 8) updated poses; info: :class:`BackendInfo`.
+    """
+    return _solve_with(_linearize_with_cost, T_WC, X, C, ii, jj, idx, valid, Q, cfg, K)

@@ -1,0 +1,318 @@
+"""Spec §11 — configuration: upstream's YAML files, ``inherit``, command-line overrides.
+
+Upstream keeps every setting in ``config/*.yaml`` (``base.yaml`` and files that ``inherit`` it,
+e.g. ``calib.yaml``) and reads them into one global dictionary. Here the same files are read
+into a frozen :class:`SlamConfig` that is passed explicitly; the typed per-module configs
+(``MatchingConfig``, ``TrackingConfig``, ``FusionConfig``, ``BackendConfig``) are built from
+their YAML sections on demand, with upstream's key names.
+
+Rules:
+
+* ``inherit: FILE`` is resolved recursively (relative to the including file; a bare ``base`` or
+  ``calib`` names the packaged files in ``mslam_ref/configs``); the child overrides the parent
+  key by key, recursively for sections.
+* Floats such as ``1e-8`` parse as floats (upstream adds a YAML float resolver for this).
+* Every key must exist in the packaged ``base.yaml``: an unknown key (a typo) is a
+  ``ValueError`` naming the file and the key, as is a value of the wrong type.
+* Overrides ``SECTION.KEY=VALUE`` (``--set tracking.Q_conf=2.0``) are parsed as YAML scalars and
+  applied last.
+
+Public names, in reading order:
+    SlamConfig, DatasetConfig, RetrievalSettings, RelocConfig, load_config, parse_override,
+    config_to_dict, CONFIG_DIR
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import re
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+__all__ = [
+    "CONFIG_DIR",
+    "DatasetConfig",
+    "RelocConfig",
+    "RetrievalSettings",
+    "SlamConfig",
+    "config_to_dict",
+    "load_config",
+    "parse_override",
+]
+
+#: Folder of the packaged YAML files (``base.yaml``, ``calib.yaml``).
+CONFIG_DIR = Path(__file__).with_name("configs")
+
+
+class _Loader(yaml.SafeLoader):
+    """SafeLoader that reads ``1e-8`` (no dot) as a float, as upstream's resolver does."""
+
+
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(
+        r"""^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+]?[0-9]+)?
+        |[-+]?(?:[0-9][0-9_]*)(?:[eE][-+]?[0-9]+)
+        |\.[0-9_]+(?:[eE][-+][0-9]+)?
+        |[-+]?\.(?:inf|Inf|INF)
+        |\.(?:nan|NaN|NAN))$""",
+        re.X,
+    ),
+    list("-+0123456789."),
+)
+
+
+@dataclass(frozen=True)
+class DatasetConfig:
+    """``dataset.*`` keys (spec §10.3, §11).
+
+    Attributes:
+        subsample: keep every n-th frame (>= 1).
+        img_downsample: upstream's output stride; unsupported upstream, must be 1.
+        center_principle_point: re-centre the principal point when undistorting (upstream key,
+            spelling kept).
+        long_side: mslam only — resize frames so that the long side has this many pixels
+            (0 keeps the source resolution). Upstream always resizes to 512 for the network;
+            on a CPU a smaller size keeps runs short.
+    """
+
+    subsample: int = 1
+    img_downsample: int = 1
+    center_principle_point: bool = True
+    long_side: int = 0
+
+
+@dataclass(frozen=True)
+class RetrievalSettings:
+    """``retrieval.*`` keys: candidates per query and the score threshold (spec §7.2)."""
+
+    k: int = 3
+    min_thresh: float = 5e-3
+
+
+@dataclass(frozen=True)
+class RelocConfig:
+    """``reloc.*`` keys (spec §9): the stricter match fraction and all-or-nothing acceptance."""
+
+    min_match_frac: float = 0.3
+    strict: bool = True
+
+
+@dataclass(frozen=True)
+class SlamConfig:
+    """The whole resolved configuration of a run (upstream's global ``config`` dict, typed).
+
+    Attributes:
+        use_calib: calibrated mode (pixel + log-depth residuals, points on known rays).
+        single_thread: upstream's sequential evaluation mode; this implementation is always
+            single-process, the key is kept for compatibility.
+        dataset, retrieval, reloc: typed sections.
+        sections: the resolved YAML as nested plain dicts (``matching``, ``tracking``,
+            ``local_opt``, ...), the source of :meth:`matching`, :meth:`tracking`, ...
+        sources: the files read, parent first.
+    """
+
+    use_calib: bool = False
+    single_thread: bool = True
+    dataset: DatasetConfig = field(default_factory=DatasetConfig)
+    retrieval: RetrievalSettings = field(default_factory=RetrievalSettings)
+    reloc: RelocConfig = field(default_factory=RelocConfig)
+    sections: Mapping[str, Any] = field(default_factory=dict)
+    sources: tuple[str, ...] = ()
+
+    def _typed(self, module: str, cls_name: str, section: str) -> Any:
+        import importlib
+
+        cls = getattr(importlib.import_module(f"mslam_ref.{module}"), cls_name)
+        keys = {f.name for f in dataclasses.fields(cls)}
+        values = {k: v for k, v in dict(self.sections.get(section, {})).items() if k in keys}
+        return cls(**values)
+
+    def matching(self) -> Any:
+        """``mslam_ref.matching.MatchingConfig`` from ``matching.*``."""
+        return self._typed("matching", "MatchingConfig", "matching")
+
+    def tracking(self) -> Any:
+        """``mslam_ref.tracking.TrackingConfig`` from ``tracking.*``."""
+        return self._typed("tracking", "TrackingConfig", "tracking")
+
+    def fusion(self) -> Any:
+        """``mslam_ref.fusion.FusionConfig`` from ``tracking.filtering_mode/filtering_score``."""
+        return self._typed("fusion", "FusionConfig", "tracking")
+
+    def backend(self) -> Any:
+        """``mslam_ref.backend.BackendConfig`` from ``local_opt.*``."""
+        return self._typed("backend", "BackendConfig", "local_opt")
+
+
+def _read_yaml(path: Path) -> dict[str, Any]:
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise ValueError(f"{path}: cannot read config file ({exc.strerror or exc})") from None
+    try:
+        data = yaml.load(text, Loader=_Loader)  # noqa: S506 - SafeLoader subclass
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f" line {mark.line + 1}" if mark is not None else ""
+        raise ValueError(f"{path}:{where} invalid YAML") from None
+    if data is None:
+        return {}
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: a config file must be a mapping of keys, got {type(data).__name__}")
+    return data
+
+
+def _merge(parent: dict[str, Any], child: Mapping[str, Any]) -> dict[str, Any]:
+    out = copy.deepcopy(parent)
+    for key, value in child.items():
+        if isinstance(value, Mapping) and isinstance(out.get(key), dict):
+            out[key] = _merge(out[key], value)
+        else:
+            out[key] = copy.deepcopy(value)
+    return out
+
+
+def _resolve_path(name: str, base_dir: Path) -> Path:
+    p = Path(name)
+    if p.is_absolute() and p.exists():
+        return p
+    for cand in (base_dir / p, CONFIG_DIR / p, CONFIG_DIR / f"{name}.yaml"):
+        if cand.is_file():
+            return cand
+    return base_dir / p
+
+
+def _load_chain(path: Path, seen: tuple[Path, ...]) -> tuple[dict[str, Any], list[str]]:
+    path = path.resolve()
+    if path in seen:
+        raise ValueError(f"{path}: 'inherit' cycle")
+    if not path.is_file():
+        raise ValueError(f"{path}: config file not found")
+    data = _read_yaml(path)
+    parent_name = data.pop("inherit", None)
+    if parent_name is None:
+        return data, [str(path)]
+    if not isinstance(parent_name, str):
+        raise ValueError(f"{path}: 'inherit' must be a file name")
+    parent, files = _load_chain(_resolve_path(parent_name, path.parent), (*seen, path))
+    return _merge(parent, data), [*files, str(path)]
+
+
+def _check_against(schema: Mapping[str, Any], data: Mapping[str, Any], where: str, prefix=""):
+    for key, value in data.items():
+        dotted = f"{prefix}{key}"
+        if key not in schema:
+            raise ValueError(f"{where}: unknown config key {dotted!r}")
+        ref = schema[key]
+        if isinstance(ref, dict):
+            if not isinstance(value, Mapping):
+                raise ValueError(f"{where}: {dotted!r} must be a section (mapping)")
+            _check_against(ref, value, where, f"{dotted}.")
+        elif isinstance(ref, bool):
+            if not isinstance(value, bool):
+                raise ValueError(f"{where}: {dotted!r} must be true or false, got {value!r}")
+        elif isinstance(ref, int | float):
+            if isinstance(value, bool) or not isinstance(value, int | float):
+                raise ValueError(f"{where}: {dotted!r} must be a number, got {value!r}")
+        elif isinstance(ref, str) and not isinstance(value, str):
+            raise ValueError(f"{where}: {dotted!r} must be a string, got {value!r}")
+
+
+def parse_override(text: str) -> tuple[list[str], Any]:
+    """Parse ``SECTION.KEY=VALUE`` into the key path and a YAML-typed value.
+
+    Example: ``"tracking.Q_conf=2.0"`` → ``(["tracking", "Q_conf"], 2.0)``.
+    """
+    if "=" not in text:
+        raise ValueError(f"--set {text!r}: expected KEY=VALUE, e.g. tracking.Q_conf=2.0")
+    key, raw = text.split("=", 1)
+    path = [p for p in key.strip().split(".") if p]
+    if not path:
+        raise ValueError(f"--set {text!r}: empty key")
+    try:
+        value = yaml.load(raw.strip(), Loader=_Loader) if raw.strip() else None  # noqa: S506
+    except yaml.YAMLError:
+        raise ValueError(f"--set {text!r}: value is not a YAML scalar") from None
+    return path, value
+
+
+def _coerce_numbers(schema: Mapping[str, Any], data: dict[str, Any]) -> None:
+    """Ints where the schema has floats become floats (``sigma_dist: 10`` → 10.0)."""
+    for key, value in data.items():
+        ref = schema.get(key)
+        if isinstance(ref, dict) and isinstance(value, dict):
+            _coerce_numbers(ref, value)
+        elif isinstance(ref, float) and isinstance(value, int) and not isinstance(value, bool):
+            data[key] = float(value)
+        elif isinstance(ref, int) and not isinstance(ref, bool) and isinstance(value, float):
+            if value.is_integer():
+                data[key] = int(value)
+
+
+def load_config(path: str | Path | None = None, overrides: Iterable[str] = ()) -> SlamConfig:
+    """Read a config file (default: the packaged ``base.yaml``) and apply overrides.
+
+    Upstream: mast3r_slam/config.py::load_config (``inherit`` resolution, float resolver).
+
+    Args:
+        path: a YAML file, or ``base`` / ``calib`` for the packaged files, or None for base.
+        overrides: ``SECTION.KEY=VALUE`` strings applied after the files.
+
+    Returns:
+        the resolved :class:`SlamConfig`.
+
+    Raises:
+        ValueError: unreadable or invalid file, unknown key, wrong value type, naming the file.
+    """
+    overrides = list(overrides)
+    base_path = CONFIG_DIR / "base.yaml"
+    schema = _read_yaml(base_path)
+    if path is None:
+        data, files = copy.deepcopy(schema), [str(base_path)]
+    else:
+        p = _resolve_path(str(path), Path.cwd())
+        data, files = _load_chain(p, ())
+        _check_against(schema, data, str(p))
+        data = _merge(schema, data)
+    for text in overrides:
+        keys, value = parse_override(text)
+        node = data
+        for k in keys[:-1]:
+            if not isinstance(node.get(k), dict):
+                raise ValueError(f"--set {text!r}: unknown config key {'.'.join(keys)!r}")
+            node = node[k]
+        if keys[-1] not in node or isinstance(node[keys[-1]], dict):
+            raise ValueError(f"--set {text!r}: unknown config key {'.'.join(keys)!r}")
+        node[keys[-1]] = value
+    _check_against(schema, data, "config overrides" if overrides else files[-1])
+    _coerce_numbers(schema, data)
+
+    ds = DatasetConfig(**data["dataset"])
+    if ds.subsample < 1:
+        raise ValueError(f"{files[-1]}: dataset.subsample must be >= 1, got {ds.subsample}")
+    if ds.img_downsample != 1:
+        raise ValueError(f"{files[-1]}: dataset.img_downsample must be 1 (unsupported upstream)")
+    if ds.long_side < 0:
+        raise ValueError(f"{files[-1]}: dataset.long_side must be >= 0, got {ds.long_side}")
+    return SlamConfig(
+        use_calib=bool(data["use_calib"]),
+        single_thread=bool(data["single_thread"]),
+        dataset=ds,
+        retrieval=RetrievalSettings(**data["retrieval"]),
+        reloc=RelocConfig(**data["reloc"]),
+        sections={k: v for k, v in data.items() if isinstance(v, dict)},
+        sources=tuple(files),
+    )
+
+
+def config_to_dict(cfg: SlamConfig) -> dict[str, Any]:
+    """The resolved configuration as nested plain dicts (what ``summary.json`` records)."""
+    out: dict[str, Any] = {"use_calib": cfg.use_calib, "single_thread": cfg.single_thread}
+    out.update(copy.deepcopy(dict(cfg.sections)))
+    return out

@@ -1,0 +1,92 @@
+"""Stand-in for MASt3R's local-feature head — dense patch descriptors from the image alone.
+
+MASt3R predicts a 24-D unit descriptor per pixel (paper §3.2 uses it to refine matches in a
+small window). Without the network, a fixed random projection of a normalised colour patch
+plays that role: it is deterministic, identical for every image (so descriptors of two images
+are comparable), varies smoothly with the pixel position (the image is blurred first and the
+patch taps are spaced by ``step``), and discriminates between textured locations.
+
+``D(u, v) = normalize(P^T z(u, v))`` with ``z`` the 3·p² samples of the blurred image on a p x p
+grid of spacing ``step`` around (u, v), minus their mean and divided by their standard deviation
+(plus ``eps``), and ``P`` a fixed (3p², F) Gaussian matrix. ``contrast(u, v)`` is that standard
+deviation; the priors turn it into the descriptor confidence Q.
+
+Public names, in reading order:
+    DescriptorConfig, patch_descriptors
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
+
+from mslam_ref.conventions import FloatArray
+
+__all__ = ["DescriptorConfig", "patch_descriptors"]
+
+
+@dataclass(frozen=True)
+class DescriptorConfig:
+    """Patch descriptor parameters.
+
+    Attributes:
+        dim: descriptor dimension F (MASt3R: 24).
+        patch: p, taps per side (odd).
+        step: spacing of the taps in pixels.
+        blur_sigma: Gaussian blur of the image before sampling (pixels).
+        eps: added to the patch standard deviation (flat patches stay finite).
+        seed: seed of the projection matrix (the same for every image).
+    """
+
+    dim: int = 24
+    patch: int = 7
+    step: int = 1
+    blur_sigma: float = 0.5
+    eps: float = 0.02
+    seed: int = 24
+
+
+def _projection(cfg: DescriptorConfig) -> FloatArray:
+    rng = np.random.default_rng([cfg.seed, cfg.patch, cfg.dim])
+    n = 3 * cfg.patch * cfg.patch
+    return rng.standard_normal((n, cfg.dim)) / np.sqrt(n)
+
+
+def patch_descriptors(
+    rgb: np.ndarray, cfg: DescriptorConfig = DescriptorConfig()
+) -> tuple[FloatArray, FloatArray]:
+    """Dense unit descriptors and local contrast of an RGB image.
+
+    Args:
+        rgb: (H, W, 3) uint8 image.
+        cfg: descriptor parameters.
+
+    Returns:
+        D: (H, W, F) float64 descriptors with ``‖D‖ = 1`` per pixel.
+        contrast: (H, W) float64 patch standard deviation (image values in [0, 1]).
+    """
+    rgb = np.asarray(rgb)
+    if rgb.dtype != np.uint8 or rgb.ndim != 3 or rgb.shape[2] != 3:
+        raise ValueError(f"rgb: expected uint8 (H, W, 3), got {rgb.dtype} {rgb.shape}")
+    if cfg.patch % 2 != 1 or cfg.patch < 1 or cfg.step < 1 or cfg.dim < 1:
+        raise ValueError("cfg: patch must be odd and >= 1; step, dim >= 1")
+    H, W = rgb.shape[:2]
+    img = rgb.astype(np.float64) / 255.0
+    if cfg.blur_sigma > 0:
+        img = cv2.GaussianBlur(img, (0, 0), cfg.blur_sigma, borderType=cv2.BORDER_REFLECT)
+    r = (cfg.patch // 2) * cfg.step
+    pad = np.pad(img, ((r, r), (r, r), (0, 0)), mode="reflect" if min(H, W) > r else "edge")
+    w = 2 * r + 1
+    win = sliding_window_view(pad, (w, w), axis=(0, 1))[..., :: cfg.step, :: cfg.step]
+    z = np.ascontiguousarray(win.transpose(0, 1, 3, 4, 2)).reshape(H * W, -1)  # (N, 3 p^2)
+    z -= z.mean(axis=1, keepdims=True)
+    contrast = np.sqrt((z * z).mean(axis=1))
+    D = ((z @ _projection(cfg)) / (contrast + cfg.eps)[:, None]).reshape(H, W, cfg.dim)
+    contrast = contrast.reshape(H, W)
+    # A fixed tiny offset keeps the norm away from zero on perfectly flat patches.
+    D[..., 0] += 1e-6
+    D /= np.linalg.norm(D, axis=-1, keepdims=True)
+    return D, contrast

@@ -1,0 +1,82 @@
+"""Paper §3.5 (spec §1.5, §7.3, §8) — graph construction and the global backend, synchronously.
+
+Upstream runs these in a backend process; in single-thread mode the frontend waits for them.
+Here they are plain function calls after every new keyframe (and after a relocalisation):
+
+1. candidates for the new keyframe ``k``: the previous keyframe ``k - 1`` (``n_consec = 1``)
+   plus the retrieval database's answer (query, then insert ``k``; ``retrieval.k``,
+   ``retrieval.min_thresh``), deduplicated, without ``k``;
+2. ``FactorGraph.add_factors(ii=candidates, jj=[k]·n, min_match_frac=local_opt.min_match_frac)``;
+3. the global Gauss–Newton over all keyframes with edges (first one fixed), through the kernel
+   set's ``backend.solve``; the poses are written back.
+
+Public names, in reading order:
+    add_keyframe_edges, solve_backend
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+__all__ = ["add_keyframe_edges", "solve_backend"]
+
+
+def add_keyframe_edges(system: Any, k: int) -> int:
+    """Graph construction for new keyframe ``k``; returns the number of edges added.
+
+    Upstream: main.py::run_backend (candidate list), global_opt.py::FactorGraph.add_factors.
+    """
+    kf = system.keyframes[k]
+    candidates = [k - 1] if k >= 1 else []
+    candidates += system.retrieval.update(kf.features)
+    seen: list[int] = []
+    for c in candidates:
+        if c != k and c not in seen and 0 <= c < len(system.keyframes):
+            seen.append(int(c))
+    if not seen:
+        return 0
+    before = len(system.graph)
+    system.graph.add_factors(
+        ii=seen,
+        jj=[k] * len(seen),
+        store=system.keyframes,
+        prior=system.prior,
+        kernels=system.kernels,
+        matching_cfg=system.matching_cfg,
+        Q_conf=system.backend_cfg.Q_conf,
+        min_match_frac=system.backend_cfg.min_match_frac,
+        kind="retrieval",
+    )
+    return len(system.graph) - before
+
+
+def solve_backend(system: Any) -> dict[str, Any] | None:
+    """Global Gauss–Newton over every keyframe with an edge; writes the poses back.
+
+    Upstream: global_opt.py::FactorGraph.solve_GN_rays / solve_GN_calib (spec §8). Pointmaps
+    are ray-constrained first in calibrated mode. Returns a record of the solve (or None when
+    the graph has no edge).
+    """
+    blocks = system.graph.two_way_blocks()
+    if len(blocks.ii) == 0:
+        return None
+    T_WC = system.keyframes.poses()
+    X, C = system.keyframes.pointmaps(system._fusion_ref, system.K)
+    T_new, info = system.kernels.backend.solve(
+        T_WC, X, C, blocks.ii, blocks.jj, blocks.idx, blocks.valid, blocks.Q,
+        system.backend_cfg, system.K,
+    )
+    T_new = np.asarray(T_new, dtype=np.float64)
+    if not np.all(np.isfinite(T_new)):
+        raise FloatingPointError("backend.solve returned non-finite poses")
+    system.keyframes.set_poses(T_new)
+    system.stats.backend_solves += 1
+    record = {"keyframes": len(system.keyframes), "edges": len(system.graph)}
+    for key in ("iterations", "cost", "step_norms", "failed"):
+        if hasattr(info, key):
+            val = getattr(info, key)
+            record[key] = val.tolist() if isinstance(val, np.ndarray) else val
+    system.backend_history.append(record)
+    return record

@@ -1,0 +1,78 @@
+"""mslam_fast.backend against mslam_ref.backend: the 14x14 blocks, gradients and solved poses."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mslam_ref import backend as ref
+from mslam_ref import sim3
+from mslam_ref.pointmap import backproject
+from tolerances import tol
+
+KF, H, W = 4, 24, 32
+K = np.array([[30.0, 0.0, 15.5], [0.0, 31.0, 11.5], [0.0, 0.0, 1.0]])
+
+
+def _graph(seed: int):
+    """4 keyframes looking at a wavy wall; random (not necessarily correct) matches with noise,
+    invalid entries, low qualities and low confidences, so every branch is exercised."""
+    rng = np.random.default_rng(seed)
+    v, u = np.mgrid[0:H, 0:W]
+    T = sim3.exp(np.concatenate([rng.normal(0, 0.1, (KF, 6)), rng.normal(0, 0.05, (KF, 1))], 1))
+    X = np.stack([backproject(2.0 + 0.3 * np.sin(u / 4.0 + k) + 0.2 * np.cos(v / 3.0), K) for k in range(KF)])
+    X = X + rng.normal(0, 0.01, X.shape)
+    X[0, 0, :3, 2] = -1.0  # points behind the camera
+    C = rng.uniform(0.0, 3.0, (KF, H, W))
+    ii = np.array([0, 1, 1, 2, 3, 0])
+    jj = np.array([1, 0, 2, 1, 0, 3])
+    N = H * W
+    idx = np.clip(np.arange(N)[None] + rng.integers(-40, 40, (len(ii), N)), 0, N - 1)
+    valid = rng.random((len(ii), N)) < 0.9
+    Q = rng.uniform(1.0, 4.0, (len(ii), N))
+    return T, X, C, ii, jj, idx, valid, Q
+
+
+@pytest.mark.parametrize("calibrated", [False, True])
+@pytest.mark.parametrize("seed", [0, 1])
+def test_linearize_parity(fast: str, calibrated: bool, seed: int) -> None:
+    from mslam_fast import backend as fst
+
+    T, X, C, ii, jj, idx, valid, Q = _graph(seed)
+    Kc = K if calibrated else None
+    Hr, gr = ref.linearize(T, X, C, ii, jj, idx, valid, Q, ref.BackendConfig(), Kc)
+    Hf, gf = fst.linearize(T, X, C, ii, jj, idx, valid, Q, ref.BackendConfig(), Kc)
+    assert Hf.shape == (6, 4, 7, 7) and gf.shape == (6, 2, 7)
+    t = tol("backend", fast)
+    scale = np.abs(Hr).max(axis=(1, 2, 3), keepdims=True)
+    np.testing.assert_allclose(Hf, Hr, rtol=t["rtol"], atol=0)  if fast == "f64" else None
+    assert np.all(np.abs(Hf - Hr) <= t["atol"] * scale + t["rtol"] * np.abs(Hr))
+    gscale = np.abs(gr).max(axis=(1, 2), keepdims=True)
+    assert np.all(np.abs(gf - gr) <= t["atol"] * gscale + t["rtol"] * np.abs(gr))
+    _, _, cr = ref._linearize_with_cost(T, X, C, ii, jj, idx, valid, Q, ref.BackendConfig(), Kc)
+    _, _, cf = fst._linearize_with_cost(T, X, C, ii, jj, idx, valid, Q, ref.BackendConfig(), Kc)
+    assert cf == pytest.approx(cr, rel=t["rtol"])
+
+
+@pytest.mark.parametrize("calibrated", [False, True])
+def test_solve_parity(fast: str, calibrated: bool) -> None:
+    from mslam_fast import backend as fst
+
+    T, X, C, ii, jj, idx, valid, Q = _graph(2)
+    Kc = K if calibrated else None
+    cfg = ref.BackendConfig(max_iters=3)
+    Tr, ir = ref.solve(T, X, C, ii, jj, idx, valid, Q, cfg, Kc)
+    Tf, inf = fst.solve(T, X, C, ii, jj, idx, valid, Q, cfg, Kc)
+    assert inf.iterations == ir.iterations and inf.keyframes == ir.keyframes
+    np.testing.assert_array_equal(Tf[0], T[0])
+    np.testing.assert_allclose(Tf, Tr, rtol=0, atol=tol("backend", fast)["atol"] * 10)
+
+
+def test_empty_and_bad(fast: str) -> None:
+    from mslam_fast import backend as fst
+
+    T, X, C, ii, jj, idx, valid, Q = _graph(3)
+    Hs, gs = fst.linearize(T, X, C, ii[:0], jj[:0], idx[:0], valid[:0], Q[:0])
+    assert Hs.shape == (0, 4, 7, 7) and gs.shape == (0, 2, 7)
+    with pytest.raises(ValueError, match="idx"):
+        fst.linearize(T, X, C, ii, jj, idx + H * W, valid, Q)

@@ -1,0 +1,321 @@
+"""Priors: protocol invariants, the synthetic noise model, the RGB-D prior, MASt3R activations."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from mslam_ref import sim3
+from mslam_ref.pointmap import backproject
+from mslam_ref.priors import DESC_DIM, PairPrediction, Prior, check_prediction
+from mslam_ref.priors.descriptors import patch_descriptors
+from mslam_ref.priors.synthetic import SyntheticPrior, SyntheticPriorConfig
+from mslam_ref.synthetic import make_sequence
+
+W, H = 64, 48
+
+
+@pytest.fixture(scope="module")
+def seq():
+    return make_sequence("loop", n_frames=30, width=W, height=H, seed=0)
+
+
+def test_synthetic_prior_protocol(seq) -> None:
+    prior = SyntheticPrior(seq)
+    assert isinstance(prior, Prior)
+    pred = prior.pair(seq[0], seq[2])
+    check_prediction(pred)
+    assert pred.X_ii.shape == (H, W, 3) and pred.D_ji.shape == (H, W, DESC_DIM)
+    X, C = prior.mono(seq[1])
+    assert X.shape == (H, W, 3) and C.shape == (H, W) and C.min() >= 1.0
+    # Deterministic by seed and frame indices; a different seed changes the noise.
+    again = prior.pair(seq[0], seq[2])
+    np.testing.assert_array_equal(pred.X_ji, again.X_ji)
+    np.testing.assert_array_equal(pred.D_ii, again.D_ii)
+    other = SyntheticPrior(seq, SyntheticPriorConfig(seed=1)).pair(seq[0], seq[2])
+    assert not np.array_equal(pred.X_ji, other.X_ji)
+
+
+def test_noise_free_prior_is_ground_truth(seq) -> None:
+    cfg = SyntheticPriorConfig(
+        depth_sigma0=0, depth_sigma2=0, outlier_frac=0, pair_log_scale_sigma=0,
+        rel_trans_sigma=0, rel_rot_sigma=0, rel_log_scale_sigma=0,
+    )  # fmt: skip
+    fi, fj = seq[3], seq[5]
+    pred = SyntheticPrior(seq, cfg).pair(fi, fj)
+    np.testing.assert_allclose(pred.X_ii, backproject(fi.depth, seq.K), atol=1e-12)
+    T_ij = sim3.mul(sim3.inv(fi.T_WC), fj.T_WC)
+    np.testing.assert_allclose(pred.X_ji, sim3.act(T_ij, backproject(fj.depth, seq.K)), atol=1e-12)
+
+
+def test_depth_noise_statistics(seq) -> None:
+    cfg = SyntheticPriorConfig(
+        depth_sigma0=0.01, depth_sigma2=0.005, noise_blur_px=1.0, outlier_frac=0.0,
+        pair_log_scale_sigma=0.0,
+    )  # fmt: skip
+    prior = SyntheticPrior(seq, cfg)
+    r = []
+    for i in range(0, 30, 3):
+        f = seq[i]
+        X, _ = prior.mono(f)
+        r.append(((X[..., 2] - f.depth) / prior.sigma(f.depth)).ravel())
+    r = np.concatenate(r)
+    assert abs(r.mean()) < 0.1
+    assert 0.85 < r.std() < 1.15
+
+
+def test_outliers_and_confidence(seq) -> None:
+    cfg = SyntheticPriorConfig(outlier_frac=0.2, pair_log_scale_sigma=0.0, depth_sigma2=0.0)
+    prior = SyntheticPrior(seq, cfg)
+    f = seq[4]
+    X, C = prior.mono(f)
+    rel = np.abs(np.log(X[..., 2] / f.depth))
+    out = rel > 0.15  # outliers move depth by >= exp(0.2); inlier noise is ~2 mm
+    assert 0.15 < out.mean() < 0.25
+    assert np.all(C[out] <= 1.5) and np.median(C[~out]) > 10
+    # Confidence falls with the noise level, i.e. with depth.
+    c = SyntheticPrior(seq, SyntheticPriorConfig(outlier_frac=0.0))
+    _, C2 = c.mono(f)
+    near, far = f.depth < np.quantile(f.depth, 0.2), f.depth > np.quantile(f.depth, 0.8)
+    assert np.median(C2[near]) > np.median(C2[far])
+
+
+def test_pair_scale_and_sim3_error_statistics(seq) -> None:
+    cfg = SyntheticPriorConfig(
+        pair_log_scale_sigma=0.05, rel_trans_sigma=0.02, rel_rot_sigma=0.01,
+        rel_log_scale_sigma=0.03,
+    )  # fmt: skip
+    prior = SyntheticPrior(seq, cfg)
+    xis, scales = [], []
+    for i in range(30):
+        for j in range(i + 1, min(i + 8, 30)):
+            s, E = prior.pair_errors(seq[i], seq[j])
+            scales.append(np.log(s))
+            xis.append(sim3.log(E))
+    xis, scales = np.array(xis), np.array(scales)
+    assert len(scales) > 150
+    assert 0.04 < scales.std() < 0.06
+    np.testing.assert_allclose(xis.std(axis=0), [0.02] * 3 + [0.01] * 3 + [0.03], rtol=0.25)
+    # The errors are what pair() applies (no other noise): X_ji = s E T_ij X_jj.
+    clean = replace(cfg, depth_sigma0=0.0, depth_sigma2=0.0, outlier_frac=0.0)
+    p2 = SyntheticPrior(seq, clean)
+    fi, fj = seq[2], seq[6]
+    s, E = p2.pair_errors(fi, fj)
+    pred = p2.pair(fi, fj)
+    T = sim3.mul(E, sim3.mul(sim3.inv(fi.T_WC), fj.T_WC))
+    np.testing.assert_allclose(pred.X_ji, s * sim3.act(T, backproject(fj.depth, seq.K)), atol=1e-12)
+    np.testing.assert_allclose(pred.X_ii, s * backproject(fi.depth, seq.K), atol=1e-12)
+
+
+def test_covisibility_lowers_confidence(seq) -> None:
+    prior = SyntheticPrior(seq, SyntheticPriorConfig(outlier_frac=0.0))
+    fi, fj = seq[0], seq[4]
+    pred = prior.pair(fi, fj)
+    cov = prior.covisible(fi, fj)
+    assert 0.2 < cov.mean() < 1.0
+    assert np.median(pred.C_ji[cov]) > 2 * np.median(pred.C_ji[~cov])
+    assert np.median(pred.Q_ji[cov]) > 1.5 > np.median(pred.Q_ji[~cov])
+
+
+def test_patch_descriptors_discriminate(seq) -> None:
+    D, contrast = patch_descriptors(seq[0].rgb)
+    assert D.shape == (H, W, DESC_DIM) and contrast.shape == (H, W)
+    np.testing.assert_allclose(np.linalg.norm(D, axis=-1), 1.0, atol=1e-12)
+    # A pixel is more similar to itself shifted by one pixel than to random pixels.
+    near = (D[:, 1:] * D[:, :-1]).sum(-1).mean()
+    rng = np.random.default_rng(0)
+    far = (D.reshape(-1, DESC_DIM) * rng.permutation(D.reshape(-1, DESC_DIM))).sum(-1).mean()
+    assert near > far + 0.3
+    flat = patch_descriptors(np.full((8, 8, 3), 120, np.uint8))[0]
+    np.testing.assert_allclose(np.linalg.norm(flat, axis=-1), 1.0, atol=1e-12)
+
+
+def test_check_prediction_rejects_bad_outputs(seq) -> None:
+    pred = SyntheticPrior(seq).pair(seq[0], seq[1])
+    with pytest.raises(ValueError, match="C_ii"):
+        check_prediction(replace(pred, C_ii=pred.C_ii - 1.0))
+    with pytest.raises(ValueError, match="Q_ji"):
+        check_prediction(replace(pred, Q_ji=-pred.Q_ji))
+    with pytest.raises(ValueError, match="D_ii"):
+        check_prediction(replace(pred, D_ii=2 * pred.D_ii))
+    with pytest.raises(ValueError, match="X_ji"):
+        PairPrediction(*(getattr(pred, k) for k in ("X_ii", "C_ii", "D_ii", "Q_ii")),
+                       pred.X_ji[..., :2], pred.C_ji, pred.D_ji, pred.Q_ji)  # fmt: skip
+    with pytest.raises(ValueError, match="depth"):
+        from mslam_ref.datasets import Frame
+
+        SyntheticPrior(seq).mono(Frame(0, 0.0, seq[0].rgb))
+
+
+# -- RGB-D prior ----------------------------------------------------------------------------
+
+SEVEN_PAIRS = [(0, 5), (20, 30), (50, 60), (100, 110), (130, 140)]
+
+
+def _pose_error(T_est, T_gt) -> tuple[float, float]:
+    from mslam_ref import so3
+
+    E = sim3.mul(sim3.inv(T_gt), T_est)
+    return float(np.degrees(np.linalg.norm(so3.log(E[3:7])))), float(
+        np.linalg.norm(T_est[:3] - T_gt[:3])
+    )
+
+
+def test_fill_depth() -> None:
+    from mslam_ref.priors.rgbd import fill_depth
+
+    z = np.array([[0.0, 2.0, 0.0], [0.0, 0.0, 3.0]])
+    f, valid = fill_depth(z)
+    assert valid.sum() == 2 and np.all(f > 0)
+    assert f[0, 0] == 2.0 and f[1, 2] == 3.0 and f[0, 2] in (2.0, 3.0)
+    f0, v0 = fill_depth(np.zeros((2, 2)), default=4.0)
+    assert np.all(f0 == 4.0) and not v0.any()
+
+
+def test_rgbd_prior_on_synthetic_frames() -> None:
+    from mslam_ref.priors.rgbd import RGBDPrior
+
+    seq = make_sequence("forward", n_frames=40, width=160, height=120, seed=0)
+    prior = RGBDPrior(seq)
+    fi, fj = seq[10], seq[13]
+    d = fj.depth.copy()
+    d[:10] = 0.0  # invalid depth rows are filled with confidence 1
+    fj = type(fj)(fj.index, fj.timestamp, fj.rgb, d, fj.T_WC)
+    T, n = prior.relative_pose(fi, fj)
+    rot, trans = _pose_error(T, sim3.mul(sim3.inv(fi.T_WC), fj.T_WC))
+    assert n >= 15 and rot < 1.0 and trans < 0.03
+    pred = prior.pair(fi, fj)
+    check_prediction(pred)
+    X, C = prior.mono(fj)
+    assert np.all(C[:10] == 1.0) and np.all(C[10:] > 2.0) and np.all(X[..., 2] > 0)
+    # Frames at another resolution: K is rescaled, the pose stays right.
+    small = make_sequence("forward", n_frames=40, width=80, height=60, seed=0)
+    T2, _ = prior.relative_pose(small[10], small[13])
+    assert _pose_error(T2, sim3.mul(sim3.inv(fi.T_WC), seq[13].T_WC))[1] < 0.05
+
+
+def test_rgbd_prior_relative_pose_7scenes(shared_data) -> None:
+    """Relative-pose error of features + depth + PnP on real frames (working size 160x120)."""
+    from mslam_ref.datasets import load_sequence
+    from mslam_ref.priors.rgbd import RGBDPrior
+
+    seq = load_sequence(shared_data / "seq" / "7scenes_redkitchen_f000000-000149", size=(160, 120))
+    prior = RGBDPrior(seq)
+    errs = []
+    for i, j in SEVEN_PAIRS:
+        fi, fj = seq[i], seq[j]
+        T, n = prior.relative_pose(fi, fj)
+        rot, trans = _pose_error(T, sim3.mul(sim3.inv(fi.T_WC), fj.T_WC))
+        print(
+            f"7-Scenes pair ({i},{j}): {n} inliers, rot {rot:.2f} deg, trans {100 * trans:.2f} cm"
+        )
+        errs.append((rot, trans))
+    errs = np.array(errs)
+    assert np.all(errs[:, 0] < 2.0) and np.all(errs[:, 1] < 0.05)
+    pred = prior.pair(seq[20], seq[30])
+    check_prediction(pred)
+    assert (pred.C_ji > 2).mean() > 0.5
+
+
+# -- MASt3R adapter -------------------------------------------------------------------------
+
+
+def test_mast3r_activations() -> None:
+    from mslam_ref.priors.mast3r import (
+        conf_activation,
+        desc_activation,
+        desc_conf_activation,
+        pts3d_activation,
+    )
+
+    v = np.array([[3.0, 0.0, 4.0], [0.0, 0.0, 0.0], [1e-8, 0, 0]])
+    out = pts3d_activation(v)
+    np.testing.assert_allclose(out[0], np.array([0.6, 0, 0.8]) * np.expm1(5.0), rtol=1e-14)
+    np.testing.assert_array_equal(out[1], 0.0)
+    np.testing.assert_allclose(out[2], v[2], rtol=1e-7)  # ~identity near 0
+    assert np.all(conf_activation(np.array([-50.0, 0.0, 3.0])) >= 1.0)
+    assert conf_activation(0.0) == 2.0
+    assert np.all(desc_conf_activation(np.array([-30.0, 0.0])) > 0)
+    d = desc_activation(np.random.default_rng(0).normal(size=(4, 5, 24)))
+    np.testing.assert_allclose(np.linalg.norm(d, axis=-1), 1.0, rtol=1e-14)
+
+
+class _StandInMast3r:
+    """Mimics AsymmetricMASt3R's interface on NumPy arrays, returning raw head outputs."""
+
+    def __init__(self) -> None:
+        self.calls: list[str] = []
+
+    def _encode_image(self, img, true_shape):
+        self.calls.append("encode")
+        H, W = (int(x) for x in np.asarray(true_shape)[0])
+        assert img.shape == (1, 3, H, W) and -1.0 <= img.min() and img.max() <= 1.0
+        feat = img[:, :, ::16, ::16].reshape(1, 3, -1).transpose(0, 2, 1)  # (1, HW/256, 3)
+        return feat, np.zeros((1, feat.shape[1], 2)), None
+
+    def _decoder(self, f1, p1, f2, p2):
+        self.calls.append("decode")
+        return [f1, f1 + f2], [f2, f1 - f2]
+
+    def _downstream_head(self, head, toks, shape):
+        H, W = (int(x) for x in np.asarray(shape)[0])
+        t = toks[-1][0].reshape(H // 16, W // 16, 3).repeat(16, 0).repeat(16, 1)
+        g = np.linspace(-1, 1, H * W).reshape(H, W, 1)
+        return {
+            "pts3d": (t + np.array([0, 0, 1.0 + head]))[None],
+            "conf": (t[..., 0] + head)[None],
+            "desc": np.concatenate([t, g + t[..., :1]] * 6, axis=-1)[None],
+            "desc_conf": t[..., 1][None],
+        }
+
+
+def test_mast3r_adapter_with_stand_in() -> None:
+    from mslam_ref.priors.mast3r import Mast3rConfig, Mast3rPrior, NumpyBackend
+
+    seq = make_sequence("loop", n_frames=4, width=W, height=H, seed=0)
+    net = _StandInMast3r()
+    prior = Mast3rPrior(net, Mast3rConfig(apply_activations=True), backend=NumpyBackend())
+    pred = prior.pair(seq[0], seq[1])
+    check_prediction(pred)
+    assert pred.X_ii.shape == (384, 512, 3) and pred.D_ji.shape == (384, 512, 24)
+    assert np.median(pred.X_ii[..., 2]) < np.median(pred.X_ji[..., 2])  # head 1 vs head 2
+    X, C = prior.mono(seq[0])
+    assert X.shape == (384, 512, 3) and C.min() >= 1.0
+    assert net.calls.count("encode") == 2  # encoder outputs are cached per frame
+    assert prior.network_frame(seq[0]).rgb.shape == (384, 512, 3)
+    K = prior.network_intrinsics(seq.K, seq[0])
+    np.testing.assert_allclose(K[0, 0], seq.K[0, 0] * 8)
+    with pytest.raises(ValueError, match="missing method _encode_image"):
+        Mast3rPrior(object(), backend=NumpyBackend())
+
+
+def test_mast3r_missing_dependencies(tmp_path, monkeypatch) -> None:
+    from mslam_ref.priors.mast3r import CHECKPOINT_ENV, load_mast3r, load_prior
+
+    with pytest.raises(FileNotFoundError, match=r"missing\.pth"):
+        load_mast3r(tmp_path / "missing.pth")
+    monkeypatch.delenv(CHECKPOINT_ENV, raising=False)
+    with pytest.raises(FileNotFoundError, match=CHECKPOINT_ENV):
+        load_prior()
+    ckpt = tmp_path / "w.pth"
+    ckpt.write_bytes(b"x")
+    try:
+        import torch  # noqa: F401
+    except ImportError:
+        with pytest.raises(ImportError, match="torch is not installed"):
+            load_mast3r(ckpt)
+        with pytest.raises(ValueError, match="torch is not installed"):
+            load_prior(ckpt)
+    else:
+        pytest.importorskip("mast3r")
+
+
+def test_mast3r_torch_backend() -> None:
+    torch = pytest.importorskip("torch")
+    from mslam_ref.priors.mast3r import TorchBackend
+
+    b = TorchBackend("cpu")
+    t = b.to_tensor(np.ones((2, 3), np.float32))
+    assert isinstance(t, torch.Tensor)
+    np.testing.assert_array_equal(b.to_numpy(b.as_float(t)), np.ones((2, 3)))

@@ -1,0 +1,143 @@
+"""``mslam run`` in-process: outputs exist and are well-formed; bad input fails early and cleanly."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mslam_ref.cli import main
+from mslam_ref.io import read_ply, read_tum
+
+SOURCE = "synthetic:loop:14:64x48"
+OUTPUTS = ("trajectory.txt", "keyframes.txt", "reconstruction.ply", "summary.json", "trajectory.png")
+
+
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("run") / "out"
+    rc = main(["run", SOURCE, "--out", str(out), "--kernels", "ref", "--quiet"])
+    assert rc == 0
+    return out
+
+
+def test_outputs_exist_and_are_well_formed(run_dir: Path):
+    for name in OUTPUTS:
+        assert (run_dir / name).is_file(), name
+    assert not list(run_dir.glob(".*")), "temporary files left behind"
+    s = json.loads((run_dir / "summary.json").read_text())
+    for key in ("frames", "keyframes", "loop_closure_edges", "relocalisations", "skipped_frames",
+                "seconds", "frames_per_second", "kernels", "prior", "ate_rmse", "path_length"):
+        assert key in s, key
+    assert s["frames"] == 14 and s["kernels"] == "ref" and s["prior"] == "synthetic"
+    assert s["skipped_frames"] == 0 and not s["interrupted"]
+    ts, poses = read_tum(run_dir / "trajectory.txt")
+    assert len(ts) == s["frames_with_pose"] == 14
+    assert np.all(np.diff(ts) > 0) and np.allclose(np.linalg.norm(poses[:, 3:], axis=1), 1.0)
+    kts, _ = read_tum(run_dir / "keyframes.txt")
+    assert len(kts) == s["keyframes"] and set(kts) <= set(ts)
+    xyz, rgb = read_ply(run_dir / "reconstruction.ply")
+    assert xyz.dtype == np.float32 and rgb.dtype == np.uint8 and len(xyz) > 1000
+    assert np.all(np.isfinite(xyz))
+    # the synthetic room is about 4 m x 3 m: points stay within a few metres of the cameras
+    assert np.percentile(np.linalg.norm(xyz - poses[:, :3].mean(0), axis=1), 95) < 5.0
+    assert (run_dir / "trajectory.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def _no_outputs(out: Path) -> bool:
+    return not out.exists() or not any((out / n).exists() for n in OUTPUTS)
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["synthetic:nowhere"], "unknown synthetic path"),
+        (["synthetic:loop:x"], "synthetic:NAME"),
+        (["/definitely/not/here"], "no such file"),
+        (["--config", "/no/such/config.yaml"], "config file not found"),
+        (["--set", "tracking.no_such_key=1"], "unknown config key"),
+        (["--set", "tracking.Q_conf=abc"], "must be a number"),
+        (["--kernels", "ref", "--max-frames", "0"], "--max-frames"),
+    ],
+)
+def test_bad_input_exits_2_without_outputs(tmp_path, capsys, args, message):
+    out = tmp_path / "out"
+    rc = main(["run", *args, "--out", str(out), "--quiet"])
+    err = capsys.readouterr().err
+    assert rc == 2
+    assert message in err and err.count("\n") == 1
+    assert _no_outputs(out)
+
+
+def test_missing_calibration_fails_before_work(tmp_path, capsys, monkeypatch):
+    # An image folder without intrinsics in calibrated mode: error before any frame is processed.
+    import cv2
+
+    import mslam_ref.system as system_pkg
+    from mslam_ref import datasets
+
+    if not hasattr(datasets, "load_sequence"):
+        pytest.skip("mslam_ref.datasets.load_sequence not available")
+    img_dir = tmp_path / "imgs"
+    img_dir.mkdir()
+    for i in range(3):
+        cv2.imwrite(str(img_dir / f"{i:03d}.png"), np.full((48, 64, 3), 50 * i, np.uint8))
+    called = []
+    monkeypatch.setattr(system_pkg, "run_slam", lambda *a, **k: called.append(1))
+    out = tmp_path / "out"
+    rc = main(["run", str(img_dir), "--out", str(out), "--config", "calib", "--quiet"])
+    err = capsys.readouterr().err
+    assert rc == 2 and not called and _no_outputs(out)
+    assert "intrinsics" in err or "calib" in err or "depth" in err
+
+
+def test_inconsistent_calibration_is_an_error(tmp_path, capsys):
+    calib = tmp_path / "calib.yaml"
+    calib.write_text("width: 640\nheight: 480\ncalibration: [500.0, 500.0, 320.0, 240.0]\n")
+    out = tmp_path / "out"
+    rc = main(["run", SOURCE, "--out", str(out), "--calib", str(calib), "--quiet"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "640x480" in err and "64x48" in err
+    assert _no_outputs(out)
+
+
+def test_ctrl_c_writes_what_exists(tmp_path, monkeypatch):
+    from mslam_ref.system import frontend
+
+    calls = {"n": 0}
+    original = frontend.SlamSystem.process
+
+    def interrupt_after_five(self, frame):
+        calls["n"] += 1
+        if calls["n"] > 5:
+            raise KeyboardInterrupt
+        return original(self, frame)
+
+    monkeypatch.setattr(frontend.SlamSystem, "process", interrupt_after_five)
+    out = tmp_path / "out"
+    rc = main(["run", "synthetic:loop:12:64x48", "--out", str(out), "--kernels", "ref", "--quiet"])
+    assert rc == 130
+    s = json.loads((out / "summary.json").read_text())
+    assert s["interrupted"] and s["frames"] == 5
+    assert len(read_tum(out / "trajectory.txt")[0]) == 5
+
+
+def test_unreadable_frames_are_skipped_and_counted(tmp_path, monkeypatch):
+    from mslam_ref.synthetic import SyntheticSequence
+
+    original = SyntheticSequence._load
+
+    def broken(self, i):
+        if i in (3, 7):
+            raise OSError(f"frame {i}: corrupt file")
+        return original(self, i)
+
+    monkeypatch.setattr(SyntheticSequence, "_load", broken)
+    out = tmp_path / "out"
+    with pytest.warns(RuntimeWarning, match="skipping frame"):
+        rc = main(["run", "synthetic:loop:12:64x48", "--out", str(out), "--kernels", "ref", "--quiet"])
+    assert rc == 0
+    s = json.loads((out / "summary.json").read_text())
+    assert s["skipped_frames"] == 2 and s["frames"] == 10
