@@ -83,6 +83,8 @@ class PointmapState:
 
 
 def _score(C: FloatArray, cfg: FusionConfig) -> float:
+    if C.size == 0:
+        return 0.0
     return float(np.median(C) if cfg.filtering_score == "median" else np.mean(C))
 
 
