@@ -8,16 +8,24 @@ allclose-style (integer matches, validity masks) are listed as shares in ``SHARE
 from __future__ import annotations
 
 TOL: dict[tuple[str, str], dict[str, float]] = {
-    # Sim(3)/SO(3) maps on O(1) inputs; worst f64 case ~1e-13, f32 ~3e-6.
-    ("sim3", "f64"): {"rtol": 1e-10, "atol": 1e-10},
-    ("sim3", "f32"): {"rtol": 2e-4, "atol": 2e-4},
-    ("so3", "f64"): {"rtol": 1e-10, "atol": 1e-10},
-    ("so3", "f32"): {"rtol": 2e-4, "atol": 2e-4},
-    # Tracking 7x7 H and g, backend 14x14 blocks: sums over ~2e5 pixels accumulated in f64.
+    # Sim(3): worst measured over 1500x8 hypothesis draws (tests/strategies.py), ref vs fast CPU:
+    # f64 exp/log/retract 9e-11 (lietorch's closed-form W at theta ~ sigma ~ 1e-6 cancels, both
+    # sides evaluate it in a different order), every other function <= 2e-14;
+    # f32 relative 4e-6, absolute 2e-5 (adjoint_inv_apply entries that cancel to ~0).
+    ("sim3", "f64"): {"rtol": 1e-9, "atol": 1e-9},
+    ("sim3", "f32"): {"rtol": 2e-5, "atol": 1e-4},
+    # SO(3): worst measured f64 2e-15, f32 1.4e-6 (act on points up to 10).
+    ("so3", "f64"): {"rtol": 1e-12, "atol": 1e-12},
+    ("so3", "f32"): {"rtol": 1e-5, "atol": 1e-5},
+    # Tracking 7x7 H and g, backend 14x14 blocks: per-pixel maths in the runtime float type,
+    # sums in f64. The parity tests scale atol by max|H| (per block for the backend) and the
+    # gradients' atol by 1e-3 max|H| (tracking) or max|g| (backend). Worst measured:
+    # tracking f64 2e-14, f32 7e-7; backend f64 5e-15, f32 1.2e-5; solved poses f32 1e-6.
     ("tracking", "f64"): {"rtol": 1e-9, "atol": 1e-9},
-    ("tracking", "f32"): {"rtol": 1e-2, "atol": 1e-3},
+    ("tracking", "f32"): {"rtol": 1e-3, "atol": 1e-4},
     ("backend", "f64"): {"rtol": 1e-9, "atol": 1e-9},
-    ("backend", "f32"): {"rtol": 1e-2, "atol": 1e-3},
+    ("backend", "f32"): {"rtol": 1e-3, "atol": 1e-4},
+    # Fusion per pixel; worst f64 1.3e-15 (spherical), f32 1e-6 (spherical).
     ("fusion", "f64"): {"rtol": 1e-12, "atol": 1e-12},
     ("fusion", "f32"): {"rtol": 1e-5, "atol": 1e-5},
     # Bundle adjustment residuals, Jacobians and Schur products.

@@ -56,7 +56,16 @@ def _row(J, r):
 
 @ti.kernel
 def _linearize_k(
-    T: nd, X: nd, C: nd, ii: nd, jj: nd, idx: nd, valid: nd, Q: nd, prm: nd, out: nd,
+    T: nd,
+    X: nd,
+    C: nd,
+    ii: nd,
+    jj: nd,
+    idx: nd,
+    valid: nd,
+    Q: nd,
+    prm: nd,
+    out: nd,
     calib: ti.template(),
 ):
     n = X.shape[1]
@@ -85,8 +94,11 @@ def _linearize_k(
                     if ti.static(calib):  # constrain X_j to the ray of pixel k
                         zj = Xj[2]
                         Xj = ti.Vector(
-                            [zj * (ti.cast(k % Wd, float) - cx) / fx,
-                             zj * (ti.cast(k // Wd, float) - cy) / fy, zj]
+                            [
+                                zj * (ti.cast(k % Wd, float) - cx) / fx,
+                                zj * (ti.cast(k // Wd, float) - cy) / fy,
+                                zj,
+                            ]
                         )
                     P = S.sim3_act(Tij, Xj)
                     if ti.static(not calib):
@@ -99,7 +111,9 @@ def _linearize_k(
                                 e = p[r] - pi[r]
                                 si = sq * s1_inv
                             Jj = S.sim3_adj_inv_apply(Ti, _row(J, r))
-                            KT.accumulate(acc, Jj, e, si * si * KT.huber(si * e, KT.HUBER_K), KT.DENSE)
+                            KT.accumulate(
+                                acc, Jj, e, si * si * KT.huber(si * e, KT.HUBER_K), KT.DENSE
+                            )
                     else:
                         zi = X[i, m, 2]
                         uv, J = KT.calib_rows(P, fx, fy, cx, cy)
@@ -112,7 +126,9 @@ def _linearize_k(
                             and uv[1] < Hd - 1 - border
                         )
                         if ok:
-                            tgt = ti.Vector([ti.cast(m % Wd, float), ti.cast(m // Wd, float), ti.log(zi)])
+                            tgt = ti.Vector(
+                                [ti.cast(m % Wd, float), ti.cast(m // Wd, float), ti.log(zi)]
+                            )
                             for r in ti.static(range(3)):
                                 e = uv[r] - tgt[r]
                                 si = sq * s2_inv
@@ -138,12 +154,22 @@ def _params(cfg: BackendConfig, K: Array | None, H: int, W: int) -> Array:
 
 
 def _linearize_with_cost(
-    T_WC: Any, X: Any, C: Any, ii: Any, jj: Any, idx: Any, valid: Any, Q: Any,
-    cfg: BackendConfig, K: Any,
+    T_WC: Any,
+    X: Any,
+    C: Any,
+    ii: Any,
+    jj: Any,
+    idx: Any,
+    valid: Any,
+    Q: Any,
+    cfg: BackendConfig,
+    K: Any,
 ) -> tuple[Array, Array, float]:
     """Kernel version of ``mslam_ref.backend._linearize_with_cost``. The ray constraint of
     the calibrated mode is applied inside the kernel (idempotent), not on the host."""
-    T_WC, X, C, ii, jj, idx, valid, Q, _ = _ref._check_graph(T_WC, X, C, ii, jj, idx, valid, Q, None)
+    T_WC, X, C, ii, jj, idx, valid, Q, _ = _ref._check_graph(
+        T_WC, X, C, ii, jj, idx, valid, Q, None
+    )
     K = None if K is None else _calib.check_K(K)
     dtype = ensure_init().dtype
     n_kf, H, W = X.shape[:3]
@@ -154,9 +180,17 @@ def _linearize_with_cost(
     out = np.zeros((D, max(1, -(-N // CHUNK)), KT.NACC))
     c = lambda a, s, t=dtype: np.ascontiguousarray(np.reshape(a, s), dtype=t)
     _linearize_k(
-        c(T_WC, (n_kf, 8)), c(X, (n_kf, N, 3)), c(C, (n_kf, N)), c(ii, (D,), np.int32),
-        c(jj, (D,), np.int32), c(idx, (D, N), np.int32), c(valid, (D, N), np.uint8),
-        c(Q, (D, N)), _params(cfg, K, H, W), out, K is not None,
+        c(T_WC, (n_kf, 8)),
+        c(X, (n_kf, N, 3)),
+        c(C, (n_kf, N)),
+        c(ii, (D,), np.int32),
+        c(jj, (D,), np.int32),
+        c(idx, (D, N), np.int32),
+        c(valid, (D, N), np.uint8),
+        c(Q, (D, N)),
+        _params(cfg, K, H, W),
+        out,
+        K is not None,
     )
     acc = out.sum(axis=1)
     rows, cols = zip(*KT.TRI, strict=True)

@@ -80,7 +80,16 @@ def update_pointmap(
     n = C.size
     Xo, Co = np.empty((n, 3), dtype), np.empty(n, dtype)
     if n:
-        _fuse_k(c(state.X_canon, (n, 3)), c(state.C, (n,)), c(X, (n, 3)), c(C, (n,)), Xo, Co,
-                _KERNEL_MODES[mode])
+        _fuse_k(
+            c(state.X_canon, (n, 3)),
+            c(state.C, (n,)),
+            c(X, (n, 3)),
+            c(C, (n,)),
+            Xo,
+            Co,
+            _KERNEL_MODES[mode],
+        )
     N = 1 if mode == "indep_conf" else state.N + 1
-    return PointmapState(Xo.reshape(X.shape), Co.reshape(C.shape), N, state.N_updates + 1, state.score)
+    return PointmapState(
+        Xo.reshape(X.shape), Co.reshape(C.shape), N, state.N_updates + 1, state.score
+    )

@@ -96,7 +96,9 @@ def _linearize_k(T: nd, Xf: nd, Xk: nd, Q: nd, valid: nd, prm: nd, out: nd, cali
                         and uv[1] < Hd - 1 - border
                     )
                     if ok:
-                        meas = ti.Vector([ti.cast(k % Wd, float), ti.cast(k // Wd, float), ti.log(zk)])
+                        meas = ti.Vector(
+                            [ti.cast(k % Wd, float), ti.cast(k // Wd, float), ti.log(zk)]
+                        )
                         for r in ti.static(range(3)):
                             e = meas[r] - uv[r]
                             si = sq * s2_inv
@@ -127,14 +129,31 @@ def _params(cfg: TrackingConfig, K: Array | None, shape: tuple[int, ...]) -> Arr
         return np.array([cfg.sigma_ray, cfg.sigma_dist, cfg.huber] + [0.0] * 8)
     H, W = shape[:2]
     return np.array(
-        [cfg.sigma_pixel, cfg.sigma_depth, cfg.huber, K[0, 0], K[1, 1], K[0, 2], K[1, 2],
-         cfg.pixel_border, cfg.depth_eps, W, H],
+        [
+            cfg.sigma_pixel,
+            cfg.sigma_depth,
+            cfg.huber,
+            K[0, 0],
+            K[1, 1],
+            K[0, 2],
+            K[1, 2],
+            cfg.pixel_border,
+            cfg.depth_eps,
+            W,
+            H,
+        ],
         dtype=np.float64,
     )
 
 
 def _linearize_prepared(
-    T: Array, X_f: Array, X_k: Array, Q: Array, valid: Array, cfg: TrackingConfig, K: Any,
+    T: Array,
+    X_f: Array,
+    X_k: Array,
+    Q: Array,
+    valid: Array,
+    cfg: TrackingConfig,
+    K: Any,
     shape: tuple[int, ...],
 ) -> tuple[Array, Array, float]:
     """Kernel call on inputs already validated and converted by :func:`_prepared`."""

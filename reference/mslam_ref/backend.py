@@ -143,7 +143,7 @@ def block_residual_and_jacobian(
     idx: IntArray,
     valid: BoolArray,
     Q: FloatArray,
-    cfg: BackendConfig = BackendConfig(),  # noqa: B008 (frozen, immutable)
+    cfg: BackendConfig = BackendConfig(),
     K: FloatArray | None = None,
 ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
     """Residuals, pose Jacobians and sqrt weights of one directed block (i <- j).
@@ -173,7 +173,12 @@ def block_residual_and_jacobian(
     Xi, Xj = X_i.reshape(-1, 3), X_j.reshape(-1, 3)
     m = np.where(valid, idx, 0)
     Xim = Xi[m]
-    ok = valid & (Q > cfg.Q_conf) & (C_i.reshape(-1)[m] > cfg.C_conf) & (C_j.reshape(-1) > cfg.C_conf)
+    ok = (
+        valid
+        & (Q > cfg.Q_conf)
+        & (C_i.reshape(-1)[m] > cfg.C_conf)
+        & (C_j.reshape(-1) > cfg.C_conf)
+    )
     sq = np.sqrt(np.maximum(Q, 0.0)) * ok
     P, dP = sim3.act_and_jacobian(sim3.mul(sim3.inv(T_WCi), T_WCj), Xj)
     if K is None:
@@ -204,7 +209,9 @@ def block_residual_and_jacobian(
 
 def _check_graph(
     T_WC: Any, X: Any, C: Any, ii: Any, jj: Any, idx: Any, valid: Any, Q: Any, K: Any
-) -> tuple[FloatArray, FloatArray, FloatArray, IntArray, IntArray, IntArray, BoolArray, FloatArray, Any]:
+) -> tuple[
+    FloatArray, FloatArray, FloatArray, IntArray, IntArray, IntArray, BoolArray, FloatArray, Any
+]:
     """Validate linearize/solve inputs; returns arrays (X ray-constrained when K given)."""
     T_WC = sim3.validate(T_WC, "T_WC")
     X = as_float_array(X, "X", 3)
@@ -235,12 +242,30 @@ def _check_graph(
     if K is not None:
         K = calib.check_K(K)
         X = calib.constrain_points_to_ray(X, K)
-    return T_WC, X, C, ii.astype(np.int64), jj.astype(np.int64), idx.astype(np.int64), valid.astype(bool), Q, K
+    return (
+        T_WC,
+        X,
+        C,
+        ii.astype(np.int64),
+        jj.astype(np.int64),
+        idx.astype(np.int64),
+        valid.astype(bool),
+        Q,
+        K,
+    )
 
 
 def _linearize_with_cost(
-    T_WC: Any, X: Any, C: Any, ii: Any, jj: Any, idx: Any, valid: Any, Q: Any,
-    cfg: BackendConfig, K: Any,
+    T_WC: Any,
+    X: Any,
+    C: Any,
+    ii: Any,
+    jj: Any,
+    idx: Any,
+    valid: Any,
+    Q: Any,
+    cfg: BackendConfig,
+    K: Any,
 ) -> tuple[FloatArray, FloatArray, float]:
     """:func:`linearize` plus the total robust cost ``1/2 sum W e^2`` (for the driver)."""
     T_WC, X, C, ii, jj, idx, valid, Q, K = _check_graph(T_WC, X, C, ii, jj, idx, valid, Q, K)
@@ -270,7 +295,7 @@ def linearize(
     idx: IntArray,
     valid: BoolArray,
     Q: FloatArray,
-    cfg: BackendConfig = BackendConfig(),  # noqa: B008
+    cfg: BackendConfig = BackendConfig(),
     K: FloatArray | None = None,
 ) -> tuple[FloatArray, FloatArray]:
     """Hessian blocks and gradients of D directed blocks.
@@ -352,8 +377,16 @@ LinearizeFn = Callable[..., tuple[FloatArray, FloatArray, float]]
 
 def _solve_with(
     linearize_fn: LinearizeFn,
-    T_WC: Any, X: Any, C: Any, ii: Any, jj: Any, idx: Any, valid: Any, Q: Any,
-    cfg: BackendConfig, K: Any,
+    T_WC: Any,
+    X: Any,
+    C: Any,
+    ii: Any,
+    jj: Any,
+    idx: Any,
+    valid: Any,
+    Q: Any,
+    cfg: BackendConfig,
+    K: Any,
 ) -> tuple[FloatArray, BackendInfo]:
     """The Gauss-Newton driver shared by the reference and the Taichi ``solve``;
     ``linearize_fn`` returns (Hs, gs, cost) like ``_linearize_with_cost``."""
@@ -369,7 +402,9 @@ def _solve_with(
     costs, norms, failed = [], [], 0
     for _ in range(int(cfg.max_iters)):
         Hs, gs, cost = linearize_fn(T, X, C, ii, jj, idx, valid, Q, cfg, K)
-        A, b = assemble_system(np.asarray(Hs, np.float64), np.asarray(gs, np.float64), pos_i, pos_j, n)
+        A, b = assemble_system(
+            np.asarray(Hs, np.float64), np.asarray(gs, np.float64), pos_i, pos_j, n
+        )
         dx = _factor_solve(A, b)
         if dx is None:
             failed += 1
@@ -391,7 +426,7 @@ def solve(
     idx: IntArray,
     valid: BoolArray,
     Q: FloatArray,
-    cfg: BackendConfig = BackendConfig(),  # noqa: B008
+    cfg: BackendConfig = BackendConfig(),
     K: FloatArray | None = None,
 ) -> tuple[FloatArray, BackendInfo]:
     """Global Gauss-Newton over the poses of the keyframes in the graph.

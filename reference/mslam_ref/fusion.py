@@ -101,7 +101,7 @@ def _check_XC(X: Any, C: Any) -> tuple[FloatArray, FloatArray]:
 def init_pointmap(
     X: FloatArray,
     C: FloatArray,
-    cfg: FusionConfig = FusionConfig(),  # noqa: B008 (frozen, immutable)
+    cfg: FusionConfig = FusionConfig(),
 ) -> PointmapState:
     """State after the first prediction: ``X_canon = X, C = C, N = 1, N_updates = 1``.
 
@@ -136,7 +136,7 @@ def update_pointmap(
     state: PointmapState,
     X: FloatArray,
     C: FloatArray,
-    cfg: FusionConfig = FusionConfig(),  # noqa: B008
+    cfg: FusionConfig = FusionConfig(),
 ) -> PointmapState:
     """Fuse a new prediction ``(X', C')`` into the canonical pointmap.
 

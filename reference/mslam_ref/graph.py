@@ -44,6 +44,8 @@ class Keyframe:
             C (N,) accumulated confidence, N, N_updates, score).
         shape: (H, W) of the pointmap.
         features: (nfeat, F) retrieval features, or None.
+        T_WC_init: (8,) the pose the keyframe was created with (tracking or relocalisation,
+            before any backend solve), kept for plots and diagnostics.
     """
 
     frame: Frame
@@ -51,6 +53,11 @@ class Keyframe:
     state: Any
     shape: tuple[int, int]
     features: FloatArray | None = None
+    T_WC_init: FloatArray | None = None
+
+    def __post_init__(self) -> None:
+        if self.T_WC_init is None:
+            self.T_WC_init = np.asarray(self.T_WC, dtype=np.float64).copy()
 
 
 class KeyframeStore:

@@ -63,7 +63,9 @@ def relocalise(system: Any, frame: Frame) -> bool:
         system.keyframes.pop_last()
         return False
     system.retrieval.update(features)  # query + insert: the database id becomes n
-    system.keyframes[n].T_WC = system.keyframes[candidates[0]].T_WC.copy()
+    kf = system.keyframes[n]
+    kf.T_WC = system.keyframes[candidates[0]].T_WC.copy()
+    kf.T_WC_init = kf.T_WC.copy()
     with system.timer("backend"):
         solve_backend(system)
     return True

@@ -142,7 +142,7 @@ def tracking_masks(
     C_f: FloatArray,
     C_k: FloatArray,
     Q_k: FloatArray,
-    cfg: TrackingConfig = TrackingConfig(),  # noqa: B008 (frozen, immutable)
+    cfg: TrackingConfig = TrackingConfig(),
 ) -> tuple[BoolArray, BoolArray]:
     """Masks of the pixels used for the pose (``valid_opt``) and for the keyframe test.
 
@@ -182,7 +182,7 @@ def needs_new_keyframe(
     idx_f2k: IntArray,
     valid_match_k: BoolArray,
     valid_kf: BoolArray,
-    cfg: TrackingConfig = TrackingConfig(),  # noqa: B008
+    cfg: TrackingConfig = TrackingConfig(),
 ) -> bool:
     """New-keyframe test: too few good matches or too few distinct frame pixels reached.
 
@@ -288,7 +288,7 @@ def linearize(
     X_k: FloatArray,
     Q: FloatArray,
     valid: BoolArray,
-    cfg: TrackingConfig = TrackingConfig(),  # noqa: B008
+    cfg: TrackingConfig = TrackingConfig(),
     K: FloatArray | None = None,
 ) -> tuple[FloatArray, FloatArray, float]:
     """Robust normal equations of one IRLS step at the current estimate.
@@ -392,7 +392,7 @@ def solve(
     Q: FloatArray,
     valid: BoolArray,
     T_CkCf_init: FloatArray,
-    cfg: TrackingConfig = TrackingConfig(),  # noqa: B008
+    cfg: TrackingConfig = TrackingConfig(),
     K: FloatArray | None = None,
 ) -> tuple[FloatArray, TrackingInfo]:
     """Relative pose ``T_CkCf`` by IRLS Gauss-Newton (all 7 DoF, scale included).

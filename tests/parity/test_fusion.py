@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from tolerances import tol
 
 from mslam_ref import fusion as ref
-from tolerances import tol
 
 
 @pytest.mark.parametrize("mode", ref.FILTERING_MODES)
@@ -16,7 +16,7 @@ def test_update_parity(fast: str, mode: str, shape: tuple[int, ...]) -> None:
 
     rng = np.random.default_rng(0)
     cfg = ref.FusionConfig(mode)
-    X = [rng.normal(0, 1, (*shape, 3)) + [0, 0, 2] for _ in range(3)]
+    X = [rng.normal(0, 1, (*shape, 3)) + np.array([0.0, 0.0, 2.0]) for _ in range(3)]
     C = [rng.uniform(1.0, 3.0, shape) for _ in range(3)]
     sr = sf = ref.init_pointmap(X[0], C[0], cfg)
     for k in (1, 2):
@@ -26,7 +26,9 @@ def test_update_parity(fast: str, mode: str, shape: tuple[int, ...]) -> None:
         assert (sf.N, sf.N_updates) == (sr.N, sr.N_updates) and sf.score == sr.score
         np.testing.assert_allclose(sf.X_canon, sr.X_canon, **tol("fusion", fast))
         np.testing.assert_allclose(sf.C, sr.C, **tol("fusion", fast))
-    np.testing.assert_allclose(fst.average_confidence(sf), ref.average_confidence(sr), **tol("fusion", fast))
+    np.testing.assert_allclose(
+        fst.average_confidence(sf), ref.average_confidence(sr), **tol("fusion", fast)
+    )
 
 
 def test_bad_input(fast: str) -> None:

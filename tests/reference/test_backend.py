@@ -65,7 +65,9 @@ def exact_pointmaps(T, X, ii, jj, idx, valid):
 
 def _perturb(T, scale, seed):
     rng = np.random.default_rng(seed)
-    xi = np.concatenate([rng.normal(0, scale, (len(T), 6)), rng.normal(0, scale / 2, (len(T), 1))], 1)
+    xi = np.concatenate(
+        [rng.normal(0, scale, (len(T), 6)), rng.normal(0, scale / 2, (len(T), 1))], 1
+    )
     xi[0] = 0.0
     return sim3.retract(T, xi)
 
@@ -79,7 +81,13 @@ def test_config_defaults() -> None:
     c = BackendConfig()
     assert (c.pin, c.C_conf, c.Q_conf, c.min_match_frac, c.max_iters) == (1, 0.0, 1.5, 0.1, 10)
     assert (c.pixel_border, c.depth_eps, c.delta_norm) == (-10, 1e-6, 1e-8)
-    assert (c.sigma_ray, c.sigma_dist, c.sigma_pixel, c.sigma_depth, c.sigma_point) == (0.003, 10.0, 1.0, 10.0, 0.05)
+    assert (c.sigma_ray, c.sigma_dist, c.sigma_pixel, c.sigma_depth, c.sigma_point) == (
+        0.003,
+        10.0,
+        1.0,
+        10.0,
+        0.05,
+    )
 
 
 @pytest.mark.parametrize("calibrated", [False, True])
@@ -101,17 +109,21 @@ def test_block_jacobians_match_finite_differences(calibrated: bool) -> None:
     for k in range(7):
         dx = np.zeros(7)
         dx[k] = eps
-        fd_i = (backend.block_residual_and_jacobian(*args(sim3.retract(Ti, dx), Tj))[0]
-                - backend.block_residual_and_jacobian(*args(sim3.retract(Ti, -dx), Tj))[0]) / (2 * eps)
-        fd_j = (backend.block_residual_and_jacobian(*args(Ti, sim3.retract(Tj, dx)))[0]
-                - backend.block_residual_and_jacobian(*args(Ti, sim3.retract(Tj, -dx)))[0]) / (2 * eps)
+        fd_i = (
+            backend.block_residual_and_jacobian(*args(sim3.retract(Ti, dx), Tj))[0]
+            - backend.block_residual_and_jacobian(*args(sim3.retract(Ti, -dx), Tj))[0]
+        ) / (2 * eps)
+        fd_j = (
+            backend.block_residual_and_jacobian(*args(Ti, sim3.retract(Tj, dx)))[0]
+            - backend.block_residual_and_jacobian(*args(Ti, sim3.retract(Tj, -dx)))[0]
+        ) / (2 * eps)
         scale = 1.0 if calibrated else 0.01  # rays are O(1e-2) per unit step
         np.testing.assert_allclose(J_i[on, :, k], fd_i[on], atol=1e-5 * scale, rtol=1e-4)
         np.testing.assert_allclose(J_j[on, :, k], fd_j[on], atol=1e-5 * scale, rtol=1e-4)
 
 
 def test_linearize_block_structure_and_zero_residual_at_truth() -> None:
-    T, X, C, ii, jj, idx, valid, K = loop_graph()
+    T, X, C, ii, jj, idx, valid, _ = loop_graph()
     Xe = exact_pointmaps(T, X, ii, jj, idx, valid)
     Q = np.full(valid.shape, 2.0)
     Hs, gs = backend.linearize(T, Xe, C, ii[:3], jj[:3], idx[:3], valid[:3], Q[:3])
@@ -120,14 +132,20 @@ def test_linearize_block_structure_and_zero_residual_at_truth() -> None:
     np.testing.assert_allclose(Hs[:, 0], Hs[:, 3])  # J_i = -J_j
     np.testing.assert_allclose(Hs[:, 1], -Hs[:, 3])
     assert np.abs(gs).max() < 1e-6 * np.abs(Hs).max()  # zero residual at the truth
-    _, _, cost = backend._linearize_with_cost(T, Xe, C, ii, jj, idx, valid, Q, BackendConfig(), None)
+    _, _, cost = backend._linearize_with_cost(
+        T, Xe, C, ii, jj, idx, valid, Q, BackendConfig(), None
+    )
     assert cost < 1e-12
     # one block against its definition
-    e, J_i, J_j, w = backend.block_residual_and_jacobian(T[ii[0]], T[jj[0]], X[ii[0]], X[jj[0]], C[ii[0]], C[jj[0]], idx[0], valid[0], Q[0])
+    e, J_i, J_j, w = backend.block_residual_and_jacobian(
+        T[ii[0]], T[jj[0]], X[ii[0]], X[jj[0]], C[ii[0]], C[jj[0]], idx[0], valid[0], Q[0]
+    )
     Hs1, gs1 = backend.linearize(T, X, C, ii[:1], jj[:1], idx[:1], valid[:1], Q[:1])
     Wc = np.where(np.abs(w * e) < 1.345, 1.0, 1.345 / np.maximum(np.abs(w * e), 1e-300)) * w * w
     np.testing.assert_allclose(Hs1[0, 1], np.einsum("nc,nca,ncb->ab", Wc, J_i, J_j), rtol=1e-10)
-    np.testing.assert_allclose(gs1[0, 1], np.einsum("nc,nc,nca->a", Wc, e, J_j), rtol=1e-10, atol=1e-8)
+    np.testing.assert_allclose(
+        gs1[0, 1], np.einsum("nc,nc,nca->a", Wc, e, J_j), rtol=1e-10, atol=1e-8
+    )
 
 
 def test_assemble_system_sums_blocks_and_skips_fixed() -> None:
@@ -150,13 +168,19 @@ def test_assemble_system_sums_blocks_and_skips_fixed() -> None:
 
 def test_directed_blocks() -> None:
     a = lambda v: np.full((1, 4), v)
-    ii, jj, idx, valid, Q = backend.directed_blocks([2], [5], a(1), a(2), a(True), a(False), a(3.0), a(4.0))
+    ii, jj, idx, valid, Q = backend.directed_blocks(
+        [2], [5], a(1), a(2), a(True), a(False), a(3.0), a(4.0)
+    )
     assert ii.tolist() == [2, 5] and jj.tolist() == [5, 2]
-    assert idx[:, 0].tolist() == [1, 2] and valid[:, 0].tolist() == [True, False] and Q[:, 0].tolist() == [3.0, 4.0]
+    assert (
+        idx[:, 0].tolist() == [1, 2]
+        and valid[:, 0].tolist() == [True, False]
+        and Q[:, 0].tolist() == [3.0, 4.0]
+    )
 
 
 def test_solve_exact_loop_recovers_the_trajectory() -> None:
-    T, X, C, ii, jj, idx, valid, K = loop_graph()
+    T, X, _, ii, jj, idx, valid, _ = loop_graph()
     Xe = exact_pointmaps(T, X, ii, jj, idx, valid)
     # an 11th keyframe outside the graph keeps its pose
     T_all = np.concatenate([T, sim3.exp(np.full((1, 7), 0.1))])
@@ -176,22 +200,28 @@ def test_solve_exact_loop_recovers_the_trajectory() -> None:
 def test_solve_calibrated_loop_reduces_the_error_tenfold() -> None:
     T, X, C, ii, jj, idx, valid, K = loop_graph()
     T0 = _perturb(T, 0.1, 2)
-    T1, info = backend.solve(T0, X, C, ii, jj, idx, valid, np.full(valid.shape, 2.0), BackendConfig(), K)
+    T1, info = backend.solve(
+        T0, X, C, ii, jj, idx, valid, np.full(valid.shape, 2.0), BackendConfig(), K
+    )
     assert _traj_err(T1, T) < _traj_err(T0, T) / 10  # limited by the pixel quantisation of matches
     np.testing.assert_array_equal(T1[0], T0[0])
     assert info.iterations <= 10 and info.costs[-1] < info.costs[0]
 
 
 def test_solve_edge_cases() -> None:
-    T, X, C, ii, jj, idx, valid, K = loop_graph()
+    T, X, C, ii, jj, idx, valid, _ = loop_graph()
     Q = np.full(valid.shape, 2.0)
     T0 = _perturb(T, 0.01, 4)
     # pin >= number of keyframes in the graph: nothing to do
-    T1, info = backend.solve(T0, X, C, ii[:1], jj[:1], idx[:1], valid[:1], Q[:1], BackendConfig(pin=2))
+    T1, info = backend.solve(
+        T0, X, C, ii[:1], jj[:1], idx[:1], valid[:1], Q[:1], BackendConfig(pin=2)
+    )
     assert info.iterations == 0
     np.testing.assert_array_equal(T1, T0)
     # no valid pixel: the factorisation fails, the step is zero (upstream), so |dx| = 0 stops
-    T1, info = backend.solve(T0, X, C, ii, jj, idx, np.zeros_like(valid), Q, BackendConfig(max_iters=2))
+    T1, info = backend.solve(
+        T0, X, C, ii, jj, idx, np.zeros_like(valid), Q, BackendConfig(max_iters=2)
+    )
     assert info.failed == 1 and info.iterations == 1 and info.step_norms == (0.0,)
     np.testing.assert_allclose(T1, T0, atol=1e-15)
     # pin = 2 keeps the first two sorted keyframes fixed
@@ -201,7 +231,7 @@ def test_solve_edge_cases() -> None:
 
 
 def test_bad_inputs() -> None:
-    T, X, C, ii, jj, idx, valid, K = loop_graph()
+    T, X, C, ii, jj, idx, valid, _ = loop_graph()
     Q = np.full(valid.shape, 2.0)
     with pytest.raises(ValueError, match="ii"):
         backend.linearize(T, X, C, ii + 100, jj, idx, valid, Q)

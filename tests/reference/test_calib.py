@@ -53,17 +53,29 @@ def test_constrain_points_to_ray() -> None:
 
 def test_project_calib_jacobian_and_validity() -> None:
     rng = np.random.default_rng(2)
-    P = rng.normal(0, 0.5, (50, 3)) + [0, 0, 2]
-    pz, J, valid = calib.project_calib_and_jacobian(P, K, (H, W))
+    P = rng.normal(0, 0.5, (50, 3)) + np.array([0.0, 0.0, 2.0])
+    _, J, _ = calib.project_calib_and_jacobian(P, K, (H, W))
     eps = 1e-6
     for a in range(3):
         d = np.zeros(3)
         d[a] = eps
-        fd = (calib.project_calib_and_jacobian(P + d, K, (H, W))[0] - calib.project_calib_and_jacobian(P - d, K, (H, W))[0]) / (2 * eps)
+        fd = (
+            calib.project_calib_and_jacobian(P + d, K, (H, W))[0]
+            - calib.project_calib_and_jacobian(P - d, K, (H, W))[0]
+        ) / (2 * eps)
         np.testing.assert_allclose(J[:, :, a], fd, atol=1e-6, rtol=1e-6)
     # border: strict inequalities, border = -10 admits points up to 10 px outside
     x = lambda u: (u - K[0, 2]) / K[0, 0]
-    Pb = np.array([[x(-9.99), 0, 1], [x(-10.0), 0, 1], [x(W - 1 + 9.99), 0, 1], [x(W - 1 + 10), 0, 1], [0, 0, -1], [0, 0, 0]])
+    Pb = np.array(
+        [
+            [x(-9.99), 0, 1],
+            [x(-10.0), 0, 1],
+            [x(W - 1 + 9.99), 0, 1],
+            [x(W - 1 + 10), 0, 1],
+            [0, 0, -1],
+            [0, 0, 0],
+        ]
+    )
     _, Jb, vb = calib.project_calib_and_jacobian(Pb, K, (H, W), border=-10)
     assert vb.tolist() == [True, False, True, False, False, False]
     pzb = calib.project_calib_and_jacobian(Pb, K, (H, W))[0]
@@ -99,7 +111,7 @@ def test_calib_residual_validity() -> None:
 
 def test_point_residual() -> None:
     X_k, X_f, T = _scene(3)
-    r, J = calib.point_residual_and_jacobian(T, X_f, X_k)
+    r, _ = calib.point_residual_and_jacobian(T, X_f, X_k)
     np.testing.assert_allclose(r, 0.0, atol=1e-12)
     T1 = sim3.retract(T, np.full(7, 0.02))
     _, J1 = calib.point_residual_and_jacobian(T1, X_f, X_k)

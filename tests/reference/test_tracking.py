@@ -58,7 +58,12 @@ def test_ray_dist_jacobian_matches_finite_differences(seed: int) -> None:
     T1 = sim3.retract(T, np.random.default_rng(seed).normal(0, 0.05, 7))
     r, J = tracking.ray_dist_residual_and_jacobian(T1, X_f[:40], X_k.reshape(-1, 3)[:40])
     assert r.shape == (40, 4) and J.shape == (40, 4, 7)
-    fd = _fd(lambda TT: tracking.ray_dist_residual_and_jacobian(TT, X_f[:40], X_k.reshape(-1, 3)[:40])[0], T1)
+    fd = _fd(
+        lambda TT: tracking.ray_dist_residual_and_jacobian(TT, X_f[:40], X_k.reshape(-1, 3)[:40])[
+            0
+        ],
+        T1,
+    )
     np.testing.assert_allclose(J, fd, atol=2e-7, rtol=1e-5)
 
 
@@ -66,7 +71,9 @@ def test_residuals_zero_at_truth_and_origin_is_finite() -> None:
     X_k, X_f, T = _problem(1)
     r, _ = tracking.ray_dist_residual_and_jacobian(T, X_f, X_k)
     np.testing.assert_allclose(r, 0.0, atol=1e-12)
-    r0, J0 = tracking.ray_dist_residual_and_jacobian(sim3.identity(), np.zeros((2, 3)), np.ones((2, 3)))
+    r0, J0 = tracking.ray_dist_residual_and_jacobian(
+        sim3.identity(), np.zeros((2, 3)), np.ones((2, 3))
+    )
     assert np.all(np.isfinite(r0)) and np.all(J0 == 0)
 
 
@@ -117,7 +124,9 @@ def test_solve_recovers_a_similarity_with_noise_and_outliers(calibrated: bool) -
     X_k, X_f, T = _problem(5, noise=0.002, outliers=0.04)
     Q = np.full(H * W, 2.0)
     valid = np.ones(H * W, bool)
-    T_est, info = tracking.solve(X_f, X_k, Q, valid, sim3.identity(), TrackingConfig(), K if calibrated else None)
+    T_est, info = tracking.solve(
+        X_f, X_k, Q, valid, sim3.identity(), TrackingConfig(), K if calibrated else None
+    )
     assert not info.failed and info.converged and info.iterations <= 50
     assert info.costs[0] > info.cost
     err = sim3.log(sim3.mul(T_est, sim3.inv(T)))

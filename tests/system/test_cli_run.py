@@ -17,8 +17,11 @@ OUTPUTS = ("trajectory.txt", "keyframes.txt", "reconstruction.ply", "summary.jso
 
 @pytest.fixture(scope="module")
 def run_dir(tmp_path_factory) -> Path:
+    import mslam_fast
+
+    mslam_fast.init("cpu", "f64")
     out = tmp_path_factory.mktemp("run") / "out"
-    rc = main(["run", SOURCE, "--out", str(out), "--kernels", "ref", "--quiet"])
+    rc = main(["run", SOURCE, "--out", str(out), "--kernels", "fast", "--quiet"])
     assert rc == 0
     return out
 
@@ -31,7 +34,7 @@ def test_outputs_exist_and_are_well_formed(run_dir: Path):
     for key in ("frames", "keyframes", "loop_closure_edges", "relocalisations", "skipped_frames",
                 "seconds", "frames_per_second", "kernels", "prior", "ate_rmse", "path_length"):
         assert key in s, key
-    assert s["frames"] == 14 and s["kernels"] == "ref" and s["prior"] == "synthetic"
+    assert s["frames"] == 14 and s["kernels"] == "fast" and s["prior"] == "synthetic"
     assert s["skipped_frames"] == 0 and not s["interrupted"]
     ts, poses = read_tum(run_dir / "trajectory.txt")
     assert len(ts) == s["frames_with_pose"] == 14
@@ -103,7 +106,7 @@ def test_inconsistent_calibration_is_an_error(tmp_path, capsys):
     assert _no_outputs(out)
 
 
-def test_ctrl_c_writes_what_exists(tmp_path, monkeypatch):
+def test_ctrl_c_writes_what_exists(tmp_path, monkeypatch, fast64):
     from mslam_ref.system import frontend
 
     calls = {"n": 0}
@@ -117,14 +120,14 @@ def test_ctrl_c_writes_what_exists(tmp_path, monkeypatch):
 
     monkeypatch.setattr(frontend.SlamSystem, "process", interrupt_after_five)
     out = tmp_path / "out"
-    rc = main(["run", "synthetic:loop:12:64x48", "--out", str(out), "--kernels", "ref", "--quiet"])
+    rc = main(["run", "synthetic:loop:12:64x48", "--out", str(out), "--kernels", "fast", "--quiet"])
     assert rc == 130
     s = json.loads((out / "summary.json").read_text())
     assert s["interrupted"] and s["frames"] == 5
     assert len(read_tum(out / "trajectory.txt")[0]) == 5
 
 
-def test_unreadable_frames_are_skipped_and_counted(tmp_path, monkeypatch):
+def test_unreadable_frames_are_skipped_and_counted(tmp_path, monkeypatch, fast64):
     from mslam_ref.synthetic import SyntheticSequence
 
     original = SyntheticSequence._load
@@ -137,7 +140,7 @@ def test_unreadable_frames_are_skipped_and_counted(tmp_path, monkeypatch):
     monkeypatch.setattr(SyntheticSequence, "_load", broken)
     out = tmp_path / "out"
     with pytest.warns(RuntimeWarning, match="skipping frame"):
-        rc = main(["run", "synthetic:loop:12:64x48", "--out", str(out), "--kernels", "ref", "--quiet"])
+        rc = main(["run", "synthetic:loop:12:64x48", "--out", str(out), "--kernels", "fast", "--quiet"])
     assert rc == 0
     s = json.loads((out / "summary.json").read_text())
     assert s["skipped_frames"] == 2 and s["frames"] == 10

@@ -61,6 +61,8 @@ def reconstruction_points(system: Any, c_thresh: float = C_CONF_THRESHOLD) -> tu
     for k, kf in enumerate(system.keyframes):
         H, W = kf.shape
         img = kf.frame.rgb
+        if img.shape[:2] != (H, W) and hasattr(system.prior, "network_frame"):
+            img = system.prior.network_frame(kf.frame).rgb  # the MASt3R adapter's resize/crop
         if img.shape[:2] != (H, W):
             img = cv2.resize(img, (W, H), interpolation=cv2.INTER_AREA)
         keep = (C[k] > c_thresh) & np.all(np.isfinite(X[k]), axis=-1)

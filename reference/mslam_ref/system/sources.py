@@ -139,11 +139,10 @@ def _make_prior(name: str, sequence: Any) -> Any:
     if name == "rgbd":
         from mslam_ref.priors import rgbd
 
-        cls = getattr(rgbd, "RGBDPrior", None) or getattr(rgbd, "RgbdPrior")
-        return cls(sequence)
+        return rgbd.RGBDPrior(sequence)
     from mslam_ref.priors import mast3r
 
-    return mast3r.load_prior() if hasattr(mast3r, "load_prior") else mast3r.Mast3rPrior()
+    return mast3r.load_prior()  # checkpoint from $MSLAM_MAST3R_CHECKPOINT
 
 
 def open_source(
@@ -210,7 +209,10 @@ def open_source(
     if max_frames is not None and max_frames < len(seq):
         seq = _Truncated(seq, max_frames)
     p = _make_prior(prior_name, seq)
-    return Source(seq, p, prior_name, seq.K if use_calib else None, seq.name or str(source))
+    K = seq.K if use_calib else None
+    if K is not None and hasattr(p, "network_intrinsics"):
+        K = p.network_intrinsics(K, seq[0])  # pointmaps come at the network resolution
+    return Source(seq, p, prior_name, K, seq.name or str(source))
 
 
 class _Truncated(FrameSequence):
