@@ -33,6 +33,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT / "reference"), str(ROOT / "fast"), str(ROOT / "benchmarks")]
 
 from _results import table, write_section  # noqa: E402
+
 from mslam_ref.ba import cameras, io, lm, synthetic  # noqa: E402
 
 DATA = ROOT.parent / "shared" / "data" / "ba" / "problem-49-7776-pre.txt"

@@ -75,8 +75,10 @@ def points(bound: float = 10.0) -> st.SearchStrategy[np.ndarray]:
 
 def unit_axes() -> st.SearchStrategy[np.ndarray]:
     """A unit 3-vector (rejects near-zero draws)."""
-    return _vec(3, -1.0, 1.0).filter(lambda v: np.linalg.norm(v) > 1e-3).map(
-        lambda v: v / np.linalg.norm(v)
+    return (
+        _vec(3, -1.0, 1.0)
+        .filter(lambda v: np.linalg.norm(v) > 1e-3)
+        .map(lambda v: v / np.linalg.norm(v))
     )
 
 

@@ -37,7 +37,10 @@ def test_import_does_not_initialise_taichi() -> None:
         "mslam_fast.sim3.act(np.array([0, 0, 0, 0, 0, 0, 1, 1.0]), np.ones(3))\n"
         "assert mslam_fast.current() == mslam_fast._runtime.Runtime('cpu', 'f64')\n"
     )
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT / "reference"), str(ROOT / "fast")])}
+    env = {
+        **os.environ,
+        "PYTHONPATH": os.pathsep.join([str(ROOT / "reference"), str(ROOT / "fast")]),
+    }
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
     assert out.returncode == 0, out.stderr[-2000:]
 
@@ -73,13 +76,13 @@ def test_switching_precision_recompiles_kernels(restore_cpu: None) -> None:
 
 @pytest.mark.parametrize("arch", ["gpu", "CPU", "metal", "", None])
 def test_bad_arch_raises(arch: object) -> None:
-    with pytest.raises(ValueError, match="^arch: "):
+    with pytest.raises(ValueError, match=r"^arch: "):
         mslam_fast.init(arch, "f64")  # type: ignore[arg-type]
 
 
 @pytest.mark.parametrize("fp", ["f16", "double", "fp64", np.float16, 64])
 def test_bad_precision_raises(fp: object) -> None:
-    with pytest.raises(ValueError, match="^default_fp: "):
+    with pytest.raises(ValueError, match=r"^default_fp: "):
         mslam_fast.init("cpu", fp)
 
 

@@ -72,7 +72,9 @@ before = np.stack([kf.T_WC_init for kf in system.keyframes])
 after = system.keyframes.poses()
 ate_before = evaluate.ate(kf_ts, before, seq.timestamps, seq.T_WC)
 ate_after = evaluate.ate(kf_ts, after, seq.timestamps, seq.T_WC)
-print(f"keyframe ATE before the backend {ate_before.rmse * 100:.2f} cm, after {ate_after.rmse * 100:.2f} cm")
+print(
+    f"keyframe ATE before the backend {ate_before.rmse * 100:.2f} cm, after {ate_after.rmse * 100:.2f} cm"
+)
 assert ate_after.rmse < ate_before.rmse
 
 # %%
@@ -113,7 +115,9 @@ plt.close(fig)
 idx, ts, T = system.frame_poses()
 res = evaluate.ate(ts, T, seq.timestamps, seq.T_WC)
 path = float(np.linalg.norm(np.diff(gt, axis=0), axis=1).sum())
-print(f"all {len(idx)} frames: ATE {res.rmse * 100:.2f} cm = {100 * res.rmse / path:.2f}% of the {path:.2f} m path")
+print(
+    f"all {len(idx)} frames: ATE {res.rmse * 100:.2f} cm = {100 * res.rmse / path:.2f}% of the {path:.2f} m path"
+)
 assert len(idx) == len(seq)
 assert res.rmse < 0.03 * path
 # the relative pose of a tracked frame, composed with its keyframe, gives its world pose

@@ -28,8 +28,9 @@ ROOT = Path(__file__).resolve().parents[1] if "__file__" in globals() else Path.
 sys.path[:0] = [str(ROOT / "reference"), str(ROOT / "fast")]
 
 import matplotlib.pyplot as plt
-import mslam_ref.ba as ref_ba
 import numpy as np
+
+import mslam_ref.ba as ref_ba
 from mslam_ref.ba import lm, schur, synthetic
 from mslam_ref.ba.robust import RobustKernel
 

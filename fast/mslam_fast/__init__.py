@@ -10,7 +10,7 @@ import os
 
 os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "0")  # no banner on import
 
-from mslam_fast._runtime import current, init  # noqa: E402
+from mslam_fast._runtime import current, init
 
 __all__ = ["current", "init"]
 __version__ = "0.1.0"

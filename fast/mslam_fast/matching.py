@@ -5,11 +5,12 @@ Parallel axis: one thread per target pixel n of image 2 (``ti.ndrange(B, N)``), 
 loop 1 writes the unit rays into a (B, H, W, 9) scratch image, loop 2 their Scharr gradients,
 loop 3 runs per pixel the LM (10 iterations, all taps of the 9-channel image per sample, the
 accepted sample re-used by the next iteration), the truncation and distance test, and the
-descriptor refinement (245 dot products of length F, unrolled over F).
+descriptor refinement (245 dot products of length F, a vectorised loop over F padded to 32).
 
-Precision: points, rays and the LM follow the runtime float type (f64 or f32). Descriptor dot
-products run in the descriptors' float type after coercion to the runtime type and are compared
-with ``best`` in the runtime type (upstream uses fp16 here).
+Precision: everything follows the runtime float type (f64 or f32), descriptors included
+(upstream uses fp16 for the refinement). The descriptor dot products are summed in vector lanes
+(LLVM reassociates them), so they differ from NumPy's in the last bits; only near-ties of two
+candidates can then resolve differently.
 """
 
 from typing import Any
@@ -32,6 +33,7 @@ __all__ = [
 
 Array = np.ndarray[Any, Any]
 nd = ti.types.ndarray()
+_PAD = 16  # descriptor padding (see _descriptors)
 
 
 # --- kernels -------------------------------------------------------------------------------
@@ -71,12 +73,12 @@ def _iter_proj_k(
 
 
 @ti.kernel
-def _refine_k(D11: nd, D21: nd, P1: nd, out: nd, radius: ti.i32, dmax: ti.i32, F: ti.template()):
+def _refine_k(D11: nd, D21: nd, P1: nd, out: nd, radius: ti.i32, dmax: ti.i32):
     H, W = D11.shape[1], D11.shape[2]
     for b, n in ti.ndrange(D21.shape[0], D21.shape[1]):
         u, v = K.refine_pixel(
             D11, D21, b, n, ti.cast(P1[b, n, 0], ti.i32), ti.cast(P1[b, n, 1], ti.i32),
-            H, W, radius, dmax, F,
+            H, W, radius, dmax,
         )
         out[b, n, 0] = u
         out[b, n, 1] = v
@@ -86,7 +88,7 @@ def _refine_k(D11: nd, D21: nd, P1: nd, out: nd, radius: ti.i32, dmax: ti.i32, F
 def _match_k(
     X11: nd, X21: nd, D11: nd, D21: nd, idx0: nd, use_init: ti.i32, RG: nd,
     idx: nd, valid: nd, max_iter: ti.i32, lam0: float, thresh: float, dist_thresh: float,
-    radius: ti.i32, dmax: ti.i32, F: ti.template(),
+    radius: ti.i32, dmax: ti.i32,
 ):
     _ray_image(X11, RG)
     H, W = X11.shape[1], X11.shape[2]
@@ -110,7 +112,7 @@ def _match_k(
             and ti.sqrt(K.dot3(X1, X1)) > K.NORM_EPS
         )
         if radius > 0:
-            u, v = K.refine_pixel(D11, D21, b, n, u, v, H, W, radius, dmax, F)
+            u, v = K.refine_pixel(D11, D21, b, n, u, v, H, W, radius, dmax)
         idx[b, n] = ti.cast(u, ti.i64) + ti.cast(W, ti.i64) * ti.cast(v, ti.i64)
         valid[b, n] = ti.cast(1 if ok else 0, ti.u8)
 
@@ -135,6 +137,21 @@ def _points(x: Any) -> Array:
         arr = arr.copy()
         arr[bad.any(axis=-1)] = 0.0
     return arr
+
+
+def _descriptors(x: Any, name: str) -> Array:
+    """Runtime-dtype copy of finite descriptors, zero-padded along F to a multiple of 16.
+
+    Zero padding leaves every dot product unchanged and lets the vectorised loop of
+    ``refine_pixel`` run without a scalar remainder (F = 24 -> 32).
+    """
+    x = np.asarray(x)
+    F = x.shape[-1]
+    out = np.zeros((*x.shape[:-1], -(-F // _PAD) * _PAD), dtype=ensure_init().dtype)
+    out[..., :F] = x
+    if out.size and not np.isfinite(out.sum(dtype=np.float64)) and not np.isfinite(out).all():
+        raise ValueError(f"{name}: contains non-finite values (NaN or inf)")
+    return out
 
 
 def _flags(a: Array) -> Array:
@@ -186,10 +203,10 @@ def refine_matches(D11: Any, D21: Any, p1: Any, cfg: MatchingConfig = MatchingCo
     if D2.ndim != len(lead) + 2 or D2.shape[:-2] != lead or D2.shape[-1] != F:
         raise ValueError(f"D21: expected shape (N, {F}) or (B, N, {F}), got {D2.shape}")
     p = _ref._int_pixels(p1, "p1", (*D2.shape[:-1], 2), H, W).reshape(B, -1, 2)
-    D1, D2 = _float(D1, "D11"), _float(D2, "D21").reshape(B, -1, F)
+    D1, D2 = _descriptors(D1, "D11"), _descriptors(D2.reshape(B, -1, F), "D21")
     out = np.empty_like(p)
     if out.size:
-        _refine_k(D1, D2, p, out, int(cfg.radius), int(cfg.dilation_max), F)
+        _refine_k(D1, D2, p, out, int(cfg.radius), int(cfg.dilation_max))
     return out if batched else out[0]
 
 
@@ -227,7 +244,7 @@ def match(
         if idx0.size and (idx0.min() < 0 or idx0.max() >= N):
             raise ValueError(f"idx_init: indices must lie in [0, {N})")
     X1, X2 = _points(X1), _points(X2).reshape(B, N, 3)
-    D1, D2 = _float(D1, "D11"), _float(D2, "D21").reshape(B, N, F)
+    D1, D2 = _descriptors(D1, "D11"), _descriptors(D2.reshape(B, N, F), "D21")
     idx = np.empty((B, N), dtype=np.int64)
     valid = np.empty((B, N), dtype=np.uint8)
     if B > 0:
@@ -235,6 +252,6 @@ def match(
         _match_k(
             X1, X2, D1, D2, idx0, int(idx_init is not None), RG, idx, valid,
             int(cfg.max_iter), float(cfg.lambda_init), float(cfg.convergence_thresh),
-            float(cfg.dist_thresh), int(cfg.radius), int(cfg.dilation_max), F,
+            float(cfg.dist_thresh), int(cfg.radius), int(cfg.dilation_max),
         )
     return (idx, _flags(valid)) if batched else (idx[0], _flags(valid[0]))

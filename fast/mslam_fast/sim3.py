@@ -7,7 +7,6 @@ blocks are the ``@ti.func`` in ``mslam_fast._kernels.sim3``, which matching, tra
 backend reuse inside their fused kernels.
 """
 
-
 import math
 from typing import Any
 

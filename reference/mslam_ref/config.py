@@ -156,7 +156,7 @@ def _read_yaml(path: Path) -> dict[str, Any]:
     except OSError as exc:
         raise ValueError(f"{path}: cannot read config file ({exc.strerror or exc})") from None
     try:
-        data = yaml.load(text, Loader=_Loader)  # noqa: S506 - SafeLoader subclass
+        data = yaml.load(text, Loader=_Loader)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f" line {mark.line + 1}" if mark is not None else ""
@@ -164,7 +164,9 @@ def _read_yaml(path: Path) -> dict[str, Any]:
     if data is None:
         return {}
     if not isinstance(data, dict):
-        raise ValueError(f"{path}: a config file must be a mapping of keys, got {type(data).__name__}")
+        raise ValueError(
+            f"{path}: a config file must be a mapping of keys, got {type(data).__name__}"
+        )
     return data
 
 
@@ -236,7 +238,7 @@ def parse_override(text: str) -> tuple[list[str], Any]:
     if not path:
         raise ValueError(f"--set {text!r}: empty key")
     try:
-        value = yaml.load(raw.strip(), Loader=_Loader) if raw.strip() else None  # noqa: S506
+        value = yaml.load(raw.strip(), Loader=_Loader) if raw.strip() else None
     except yaml.YAMLError:
         raise ValueError(f"--set {text!r}: value is not a YAML scalar") from None
     return path, value

@@ -118,7 +118,9 @@ class KeyframeStore:
         """
         H, W = self._kfs[0].shape
         X = np.stack([kf.state.X_canon.reshape(H, W, 3) for kf in self._kfs])
-        C = np.stack([np.asarray(fusion.average_confidence(kf.state)).reshape(H, W) for kf in self._kfs])
+        C = np.stack(
+            [np.asarray(fusion.average_confidence(kf.state)).reshape(H, W) for kf in self._kfs]
+        )
         if K is not None:
             from mslam_ref.calib import constrain_points_to_ray
 
@@ -284,12 +286,19 @@ class FactorGraph:
         """
         if not self.edges:
             z = np.zeros(0, dtype=np.int64)
-            return SimpleNamespace(ii=z, jj=z, idx=np.zeros((0, 0), np.int64),
-                                   valid=np.zeros((0, 0), bool), Q=np.zeros((0, 0)))
+            return SimpleNamespace(
+                ii=z,
+                jj=z,
+                idx=np.zeros((0, 0), np.int64),
+                valid=np.zeros((0, 0), bool),
+                Q=np.zeros((0, 0)),
+            )
         ii = [e.i for e in self.edges] + [e.j for e in self.edges]
         jj = [e.j for e in self.edges] + [e.i for e in self.edges]
         idx = np.stack([e.idx_i2j for e in self.edges] + [e.idx_j2i for e in self.edges])
-        valid = np.stack([e.valid_match_j for e in self.edges] + [e.valid_match_i for e in self.edges])
+        valid = np.stack(
+            [e.valid_match_j for e in self.edges] + [e.valid_match_i for e in self.edges]
+        )
         Q = np.stack([e.Q_j for e in self.edges] + [e.Q_i for e in self.edges])
         return SimpleNamespace(
             ii=np.asarray(ii, np.int64), jj=np.asarray(jj, np.int64), idx=idx, valid=valid, Q=Q

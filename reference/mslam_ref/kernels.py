@@ -62,7 +62,9 @@ def load_kernels(name: str = "fast") -> KernelSet:
         ValueError: unknown name, or a reference module missing.
     """
     if name not in KERNEL_SETS:
-        raise ValueError(f"kernels: unknown kernel set {name!r}; choose one of {', '.join(KERNEL_SETS)}")
+        raise ValueError(
+            f"kernels: unknown kernel set {name!r}; choose one of {', '.join(KERNEL_SETS)}"
+        )
     mods: dict[str, ModuleType] = {}
     fallbacks = []
     for piece in _PIECES:

@@ -219,15 +219,21 @@ def bilinear_sample(img: Any, u: Any, v: Any) -> FloatArray:
                 + (1−du) dv I[v0+1, u0] + du dv I[v0+1, u0+1]
 
     Args:
-        img: (B, H, W, C) image.
-        u, v: (B, N) positions with 0 <= u <= W−2, 0 <= v <= H−2 (the LM's clamp guarantees it).
+        img: (H, W, C) or (B, H, W, C) image.
+        u, v: (N,) or (B, N) positions with 0 <= u <= W−2, 0 <= v <= H−2 (the LM's clamp
+            guarantees it).
 
     Returns:
-        (B, N, C) float64 samples.
+        (N, C) or (B, N, C) float64 samples.
     """
     img = np.asarray(img, dtype=np.float64)
-    B, H, W, C = img.shape
     u, v = np.asarray(u, dtype=np.float64), np.asarray(v, dtype=np.float64)
+    if img.ndim == 3:
+        return bilinear_sample(img[None], u[None], v[None])[0]
+    if img.ndim != 4 or u.shape != v.shape or u.shape[:1] != img.shape[:1] or u.ndim != 2:
+        raise ValueError(f"img, u, v: expected (B, H, W, C), (B, N), (B, N); got {img.shape}, "
+                         f"{u.shape}, {v.shape}")
+    B, H, W, C = img.shape
     if np.any(~(u >= 0) | (u > W - 2) | ~(v >= 0) | (v > H - 2)):
         raise ValueError("u, v: positions must lie in [0, W-2] x [0, H-2]")
     flat = img.reshape(B, H * W, C)

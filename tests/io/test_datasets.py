@@ -8,6 +8,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+
 from mslam_ref import sim3
 from mslam_ref.cli import main
 from mslam_ref.datasets import (

@@ -3,12 +3,13 @@ Schur system, back-substitution, one LM step and a short LM run."""
 
 from __future__ import annotations
 
-import mslam_ref.ba as R
 import numpy as np
 import pytest
+from tolerances import tol
+
+import mslam_ref.ba as R
 from mslam_ref.ba import lm, synthetic
 from mslam_ref.ba.robust import RobustKernel
-from tolerances import tol
 
 
 @pytest.fixture(params=["pinhole", "bal"])

@@ -8,7 +8,15 @@ from typing import Any
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
-from strategies import BATCH_SHAPES, EDGE_POINT, batch_of, points, quaternions, rotation_vectors, stacked
+from strategies import (
+    BATCH_SHAPES,
+    EDGE_POINT,
+    batch_of,
+    points,
+    quaternions,
+    rotation_vectors,
+    stacked,
+)
 from tolerances import tol
 
 import mslam_fast.so3 as F

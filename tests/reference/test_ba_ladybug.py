@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
 from mslam_ref.ba import io, lm
 
 CERES_FINAL = 13344.32

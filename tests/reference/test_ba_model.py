@@ -5,9 +5,10 @@ from __future__ import annotations
 
 import itertools
 
-import mslam_ref.ba as K
 import numpy as np
 import pytest
+
+import mslam_ref.ba as K
 from mslam_ref import se3
 from mslam_ref.ba import cameras, lm, schur, synthetic
 from mslam_ref.ba.cameras import bal_retract_cameras

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+
 from mslam_ref import evaluate as ev
 from mslam_ref import io, sim3
 

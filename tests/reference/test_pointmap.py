@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+
 from mslam_ref.pointmap import (
     backproject,
     camera_rays,

@@ -6,6 +6,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+
 from mslam_ref import sim3
 from mslam_ref.pointmap import backproject
 from mslam_ref.priors import DESC_DIM, PairPrediction, Prior, check_prediction

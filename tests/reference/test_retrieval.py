@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
-from mslam_ref import retrieval as R
 from numpy.lib.stride_tricks import sliding_window_view
+
+from mslam_ref import retrieval as R
 
 F = 24
 

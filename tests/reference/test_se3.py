@@ -7,6 +7,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
+
 from mslam_ref import se3, so3
 
 vec6 = arrays(np.float64, 6, elements=st.floats(-2.0, 2.0))

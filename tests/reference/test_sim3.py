@@ -79,9 +79,7 @@ def test_mul_is_matrix_product_and_composes_actions(
     np.testing.assert_allclose(
         sim3.to_matrix(AB), sim3.to_matrix(A) @ sim3.to_matrix(B), rtol=1e-12, atol=1e-12
     )
-    np.testing.assert_allclose(
-        sim3.act(AB, X), sim3.act(A, sim3.act(B, X)), rtol=1e-12, atol=1e-11
-    )
+    np.testing.assert_allclose(sim3.act(AB, X), sim3.act(A, sim3.act(B, X)), rtol=1e-12, atol=1e-11)
 
 
 # --- Exp / Log --------------------------------------------------------------------------------
@@ -143,9 +141,7 @@ def test_adjoint_identity(T: np.ndarray, a: np.ndarray) -> None:
     np.testing.assert_allclose(
         lhs, sim3.to_matrix(sim3.exp(Ad @ a)), rtol=1e-9, atol=1e-9 * np.abs(lhs).max()
     )
-    np.testing.assert_allclose(
-        MT @ hat4(a) @ np.linalg.inv(MT), hat4(Ad @ a), rtol=1e-9, atol=1e-9
-    )
+    np.testing.assert_allclose(MT @ hat4(a) @ np.linalg.inv(MT), hat4(Ad @ a), rtol=1e-9, atol=1e-9)
 
 
 @given(T=stacked(sim3_elements()), J=stacked(tangents()))

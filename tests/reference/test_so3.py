@@ -63,9 +63,7 @@ def test_log_at_exactly_pi_has_norm_pi(ax: np.ndarray) -> None:
 
 
 @given(q1=stacked(quaternions()), q2=stacked(quaternions()), X=stacked(points()))
-def test_mul_conj_act_agree_with_matrices(
-    q1: np.ndarray, q2: np.ndarray, X: np.ndarray
-) -> None:
+def test_mul_conj_act_agree_with_matrices(q1: np.ndarray, q2: np.ndarray, X: np.ndarray) -> None:
     R1, R2 = so3.to_matrix(q1), so3.to_matrix(q2)
     np.testing.assert_allclose(so3.to_matrix(so3.mul(q1, q2)), R1 @ R2, rtol=0, atol=1e-12)
     np.testing.assert_allclose(
@@ -108,9 +106,9 @@ def test_hat_is_cross_product(v: np.ndarray, w: np.ndarray) -> None:
 def test_normalize_and_its_errors() -> None:
     q = np.array([[0.0, 0.0, 0.0, 3.0], [1.0, 1.0, 1.0, 1.0]])
     np.testing.assert_allclose(so3.normalize(q), [[0, 0, 0, 1.0], [0.5, 0.5, 0.5, 0.5]])
-    with pytest.raises(ValueError, match="^quat: .*zero norm"):
+    with pytest.raises(ValueError, match=r"^quat: .*zero norm"):
         so3.normalize(np.zeros(4), "quat")
-    with pytest.raises(ValueError, match="^q: .*trailing shape"):
+    with pytest.raises(ValueError, match=r"^q: .*trailing shape"):
         so3.normalize(np.ones(3))
 
 

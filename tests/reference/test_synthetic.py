@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from mslam_ref import sim3
 from mslam_ref.pointmap import backproject
 from mslam_ref.synthetic import (

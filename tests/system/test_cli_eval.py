@@ -6,6 +6,7 @@ import json
 
 import numpy as np
 import pytest
+
 from mslam_ref import io, sim3
 from mslam_ref.cli import main
 

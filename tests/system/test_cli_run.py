@@ -12,7 +12,13 @@ from mslam_ref.cli import main
 from mslam_ref.io import read_ply, read_tum
 
 SOURCE = "synthetic:loop:14:64x48"
-OUTPUTS = ("trajectory.txt", "keyframes.txt", "reconstruction.ply", "summary.json", "trajectory.png")
+OUTPUTS = (
+    "trajectory.txt",
+    "keyframes.txt",
+    "reconstruction.ply",
+    "summary.json",
+    "trajectory.png",
+)
 
 
 @pytest.fixture(scope="module")
@@ -31,8 +37,19 @@ def test_outputs_exist_and_are_well_formed(run_dir: Path):
         assert (run_dir / name).is_file(), name
     assert not list(run_dir.glob(".*")), "temporary files left behind"
     s = json.loads((run_dir / "summary.json").read_text())
-    for key in ("frames", "keyframes", "loop_closure_edges", "relocalisations", "skipped_frames",
-                "seconds", "frames_per_second", "kernels", "prior", "ate_rmse", "path_length"):
+    for key in (
+        "frames",
+        "keyframes",
+        "loop_closure_edges",
+        "relocalisations",
+        "skipped_frames",
+        "seconds",
+        "frames_per_second",
+        "kernels",
+        "prior",
+        "ate_rmse",
+        "path_length",
+    ):
         assert key in s, key
     assert s["frames"] == 14 and s["kernels"] == "fast" and s["prior"] == "synthetic"
     assert s["skipped_frames"] == 0 and not s["interrupted"]
@@ -140,7 +157,9 @@ def test_unreadable_frames_are_skipped_and_counted(tmp_path, monkeypatch, fast64
     monkeypatch.setattr(SyntheticSequence, "_load", broken)
     out = tmp_path / "out"
     with pytest.warns(RuntimeWarning, match="skipping frame"):
-        rc = main(["run", "synthetic:loop:12:64x48", "--out", str(out), "--kernels", "fast", "--quiet"])
+        rc = main(
+            ["run", "synthetic:loop:12:64x48", "--out", str(out), "--kernels", "fast", "--quiet"]
+        )
     assert rc == 0
     s = json.loads((out / "summary.json").read_text())
     assert s["skipped_frames"] == 2 and s["frames"] == 10

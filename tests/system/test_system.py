@@ -49,7 +49,7 @@ def test_loop_creates_keyframes_and_tracks_every_frame():
     n = len(src.sequence)
     assert system.stats.frames == n
     assert 3 <= len(system.keyframes) <= n
-    idx, ts, T = system.frame_poses()
+    idx, _ts, T = system.frame_poses()
     assert len(idx) == n and np.all(np.isfinite(T))
     assert system.stats.lost_frames == 0
     assert np.allclose(system.keyframes[0].T_WC, sim3.identity())  # gauge: first kf fixed
@@ -94,7 +94,7 @@ def test_jump_relocalises_and_finishes():
 
     src, system, _ = _run(JUMP)
     n = len(src.sequence)
-    j1, j2 = jump_indices(n)
+    _j1, j2 = jump_indices(n)
     assert system.stats.frames == n
     assert system.stats.lost_frames >= 1
     assert system.stats.relocalisations >= 1
@@ -108,7 +108,7 @@ def test_jump_relocalises_and_finishes():
 
 def test_tracking_that_never_recovers_ends_cleanly():
     # An impossible tracking threshold: every frame after the first is lost.
-    src, system, meta = _run(LOOP, overrides=("tracking.min_match_frac=1.1",))
+    src, system, _meta = _run(LOOP, overrides=("tracking.min_match_frac=1.1",))
     assert system.stats.frames == len(src.sequence)
     assert len(system.keyframes) >= 1
     assert system.stats.lost_frames + system.stats.relocalisations == len(src.sequence) - 1

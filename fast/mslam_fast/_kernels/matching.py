@@ -137,17 +137,16 @@ def lm_pixel(RG: ti.template(), b, t, u_init, v_init, H, W, max_iter, lam0, thre
 
 
 @ti.func
-def refine_pixel(
-    D11: ti.template(), D21: ti.template(), b, n, u_start, v_start, H, W, radius, dmax,
-    F: ti.template()
-):
+def refine_pixel(D11: ti.template(), D21: ti.template(), b, n, u_start, v_start, H, W, radius, dmax):
     """Coarse-to-fine descriptor search of ``mslam_ref.matching.refine_matches``; returns (u, v).
 
-    Scores are accumulated in the descriptors' dtype (sequential over k) and compared with
-    ``best`` (initially 0.0, ``REFINE_BEST_INIT``) in the runtime float type.
+    The dot product is a runtime-length loop over the (zero-padded) descriptor axis, which
+    LLVM's loop vectoriser turns into AVX code (an unrolled ``ti.static`` loop stays scalar);
+    the host pads F to a multiple of 16 so that no scalar remainder runs. ``best`` starts at
+    0.0 (``REFINE_BEST_INIT``).
     """
-    d2 = ti.Vector([D21[b, n, k] for k in ti.static(range(F))])
-    best = 0.0
+    Fp = D11.shape[3]
+    best = D21[b, n, 0] * 0.0
     u0, v0 = u_start, v_start
     ub, vb = u_start, v_start
     for level in range(dmax):
@@ -159,9 +158,9 @@ def refine_pixel(
                 for j in range(2 * radius + 1):
                     v = v0 - rd + j * d
                     if 0 <= v < H:
-                        s = d2[0] * D11[b, v, u, 0]
-                        for k in ti.static(range(1, F)):
-                            s += d2[k] * D11[b, v, u, k]
+                        s = D21[b, n, 0] * 0.0
+                        for k in range(Fp):
+                            s += D21[b, n, k] * D11[b, v, u, k]
                         if s > best:
                             best = s
                             ub, vb = u, v

@@ -249,9 +249,7 @@ def sim3_adj_inv_apply(T, J):
     y_tau = Ra * inv_s
     y_phi = quat_act(q, ti.Vector([J[3], J[4], J[5]])) + t.cross(Ra) * inv_s
     y_sigma = J[6] + t.dot(Ra) * inv_s
-    return ti.Vector(
-        [y_tau[0], y_tau[1], y_tau[2], y_phi[0], y_phi[1], y_phi[2], y_sigma]
-    )
+    return ti.Vector([y_tau[0], y_tau[1], y_tau[2], y_phi[0], y_phi[1], y_phi[2], y_sigma])
 
 
 @ti.func

@@ -9,10 +9,10 @@ from typing import Any
 
 import numpy as np
 import taichi as ti
-from mslam_ref.ba.cameras import bal_retract_cameras
 
 from mslam_fast._kernels import ba as K
 from mslam_fast._runtime import ensure_init, prepare
+from mslam_ref.ba.cameras import bal_retract_cameras
 
 __all__ = [
     "bal_linearize",

@@ -18,6 +18,9 @@ from typing import Any
 
 import numpy as np
 import taichi as ti
+
+from mslam_fast._kernels import ba as K
+from mslam_fast._runtime import ensure_init, prepare
 from mslam_ref.ba.schur import (
     DENSE_MAX,
     BlockStructure,
@@ -25,9 +28,6 @@ from mslam_ref.ba.schur import (
     dense_reduced,
     solve_reduced,
 )
-
-from mslam_fast._kernels import ba as K
-from mslam_fast._runtime import ensure_init, prepare
 
 __all__ = [
     "DENSE_MAX",

@@ -169,14 +169,17 @@ class _Clock:
 
 
 def _jacobi_scale(blocks: tuple[FloatArray, ...], structure: Any):
-    """Scale the blocks by ``D = 1 / (1 + sqrt(diag))``: ``H <- D H D``, ``b <- D b``."""
+    """Scale the blocks in place by ``D = 1 / (1 + sqrt(diag))``: ``H <- D H D``, ``b <- D b``."""
     U, V, W, bc, bl = blocks
     Dc = 1.0 / (1.0 + np.sqrt(np.diagonal(U, axis1=1, axis2=2)))
     Dp = 1.0 / (1.0 + np.sqrt(np.diagonal(V, axis1=1, axis2=2)))
-    W = W * Dc[structure.obs_cam][:, :, None] * Dp[structure.obs_pt][:, None, :]
-    U = U * Dc[:, :, None] * Dc[:, None, :]
-    V = V * Dp[:, :, None] * Dp[:, None, :]
-    return (U, V, W, bc * Dc, bl * Dp), (Dc, Dp)
+    W *= Dc[structure.obs_cam][:, :, None]
+    W *= Dp[structure.obs_pt][:, None, :]
+    U *= Dc[:, :, None] * Dc[:, None, :]
+    V *= Dp[:, :, None] * Dp[:, None, :]
+    bc *= Dc
+    bl *= Dp
+    return (U, V, W, bc, bl), (Dc, Dp)
 
 
 def _linear_system(problem: Any, kernels: Any, structure: Any, cams, points):

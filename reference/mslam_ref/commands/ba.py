@@ -51,7 +51,6 @@ def _kernel_set(name: str) -> Any:
 
         return ref_ba
     import mslam_fast.ba as fast_ba
-
     from mslam_ref.ba import lm, synthetic
 
     tiny, _ = synthetic.make_bal_problem(n_cams=3, n_points=10)

@@ -40,20 +40,43 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "video file (default: the built-in synthetic loop)",
     )
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
-    p.add_argument("--config", metavar="FILE", help="YAML config (inherit: base.yaml); "
-                   "'base' and 'calib' name the packaged files")
-    p.add_argument("--kernels", choices=("ref", "fast"), default="fast",
-                   help="kernel set: NumPy reference or Taichi (default: fast)")
-    p.add_argument("--calib", metavar="FILE", help="intrinsics YAML (width, height, "
-                   "calibration: [fx, fy, cx, cy, ...]); turns on calibrated mode")
-    p.add_argument("--prior", choices=("synthetic", "rgbd", "mast3r"),
-                   help="where pointmaps come from (default: synthetic for synthetic "
-                   "sources, rgbd when the source has depth)")
-    p.add_argument("--set", dest="overrides", action="append", default=[],
-                   metavar="KEY=VALUE", help="override a config key, e.g. tracking.Q_conf=2.0")
+    p.add_argument(
+        "--config",
+        metavar="FILE",
+        help="YAML config (inherit: base.yaml); 'base' and 'calib' name the packaged files",
+    )
+    p.add_argument(
+        "--kernels",
+        choices=("ref", "fast"),
+        default="fast",
+        help="kernel set: NumPy reference or Taichi (default: fast)",
+    )
+    p.add_argument(
+        "--calib",
+        metavar="FILE",
+        help="intrinsics YAML (width, height, "
+        "calibration: [fx, fy, cx, cy, ...]); turns on calibrated mode",
+    )
+    p.add_argument(
+        "--prior",
+        choices=("synthetic", "rgbd", "mast3r"),
+        help="where pointmaps come from (default: synthetic for synthetic "
+        "sources, rgbd when the source has depth)",
+    )
+    p.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override a config key, e.g. tracking.Q_conf=2.0",
+    )
     p.add_argument("--max-frames", type=int, metavar="N", help="process at most N frames")
-    p.add_argument("--baseline", action="store_true",
-                   help="also run OpenCV RGB-D odometry on the same frames (needs depth)")
+    p.add_argument(
+        "--baseline",
+        action="store_true",
+        help="also run OpenCV RGB-D odometry on the same frames (needs depth)",
+    )
     p.add_argument("--quiet", action="store_true", help="no progress bar and no summary")
     p.set_defaults(func=run)
 

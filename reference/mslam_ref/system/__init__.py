@@ -103,13 +103,17 @@ def run_slam(
                     raise ValueError(f"size {frame.shape} differs from the first frame's {shape}")
             except (OSError, ValueError, cv2.error) as exc:
                 system.stats.skipped_frames += 1
-                warnings.warn(f"{source.name}: skipping frame {i}: {exc}", RuntimeWarning, stacklevel=2)
+                warnings.warn(
+                    f"{source.name}: skipping frame {i}: {exc}", RuntimeWarning, stacklevel=2
+                )
                 if bar is not None:
                     bar.update(1)
                 continue
             status = system.process(frame)
             if bar is not None:
-                bar.set_postfix(kf=len(system.keyframes), mode=system.mode.name, last=status, refresh=False)
+                bar.set_postfix(
+                    kf=len(system.keyframes), mode=system.mode.name, last=status, refresh=False
+                )
                 bar.update(1)
     except KeyboardInterrupt:
         interrupted = True

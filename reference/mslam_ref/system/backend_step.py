@@ -65,8 +65,16 @@ def solve_backend(system: Any) -> dict[str, Any] | None:
     T_WC = system.keyframes.poses()
     X, C = system.keyframes.pointmaps(system._fusion_ref, system.K)
     T_new, info = system.kernels.backend.solve(
-        T_WC, X, C, blocks.ii, blocks.jj, blocks.idx, blocks.valid, blocks.Q,
-        system.backend_cfg, system.K,
+        T_WC,
+        X,
+        C,
+        blocks.ii,
+        blocks.jj,
+        blocks.idx,
+        blocks.valid,
+        blocks.Q,
+        system.backend_cfg,
+        system.K,
     )
     T_new = np.asarray(T_new, dtype=np.float64)
     if not np.all(np.isfinite(T_new)):

@@ -94,7 +94,9 @@ class SlamSystem:
         K: (3, 3) intrinsics at the pointmap resolution; required when ``cfg.use_calib``.
     """
 
-    def __init__(self, prior: Any, cfg: SlamConfig, kernels: KernelSet, K: FloatArray | None = None):
+    def __init__(
+        self, prior: Any, cfg: SlamConfig, kernels: KernelSet, K: FloatArray | None = None
+    ):
         from mslam_ref import fusion, tracking
 
         if cfg.use_calib and K is None:
@@ -134,8 +136,15 @@ class SlamSystem:
 
         return constrain_points_to_ray(X.reshape(*shape, 3), self.K).reshape(-1, 3)
 
-    def new_keyframe(self, frame: Frame, T_WC: FloatArray, X: np.ndarray, C: np.ndarray,
-                     D: np.ndarray | None = None, Q: np.ndarray | None = None) -> int:
+    def new_keyframe(
+        self,
+        frame: Frame,
+        T_WC: FloatArray,
+        X: np.ndarray,
+        C: np.ndarray,
+        D: np.ndarray | None = None,
+        Q: np.ndarray | None = None,
+    ) -> int:
         """Append a keyframe with a fresh pointmap state; returns its index."""
         shape = (int(X.shape[0]), int(X.shape[1]))
         state = self._fusion_ref.init_pointmap(_flat(X), _flat(C), self.fusion_cfg)
@@ -144,8 +153,13 @@ class SlamSystem:
                 p = self.prior.pair(frame, frame)
             D, Q = p.D_ii, p.Q_ii
         features = self.retrieval.features(D, Q)
-        kf = Keyframe(frame=frame, T_WC=np.asarray(T_WC, np.float64).copy(), state=state,
-                      shape=shape, features=features)
+        kf = Keyframe(
+            frame=frame,
+            T_WC=np.asarray(T_WC, np.float64).copy(),
+            state=state,
+            shape=shape,
+            features=features,
+        )
         return self.keyframes.append(kf)
 
     def _record(self, frame: Frame, kf: int, T_CkCf: FloatArray | None, status: str) -> None:
@@ -260,8 +274,11 @@ class SlamSystem:
             return np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 8))
         T_kf = self.keyframes.poses()
         T = sim3.mul(T_kf[[p.kf for p in rows]], np.stack([p.T_CkCf for p in rows]))
-        return (np.array([p.index for p in rows], np.int64),
-                np.array([p.timestamp for p in rows]), T)
+        return (
+            np.array([p.index for p in rows], np.int64),
+            np.array([p.timestamp for p in rows]),
+            T,
+        )
 
     def keyframe_poses(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Keyframe frame indices (K,), timestamps (K,) and poses (K, 8)."""

@@ -46,7 +46,9 @@ __all__ = [
 C_CONF_THRESHOLD = 1.5
 
 
-def reconstruction_points(system: Any, c_thresh: float = C_CONF_THRESHOLD) -> tuple[np.ndarray, np.ndarray]:
+def reconstruction_points(
+    system: Any, c_thresh: float = C_CONF_THRESHOLD
+) -> tuple[np.ndarray, np.ndarray]:
     """World points and colours of all keyframes (upstream evaluate.py::save_reconstruction).
 
     Returns:
@@ -83,7 +85,7 @@ def evaluate_run(system: Any, sequence: Any) -> dict[str, Any]:
     """
     from mslam_ref import evaluate
 
-    idx, ts, T = system.frame_poses()
+    _idx, ts, T = system.frame_poses()
     out: dict[str, Any] = {"path_length_est": _path_length(T[:, :3]) if len(T) else 0.0}
     gt = getattr(sequence, "T_WC", None)
     if gt is None or len(T) < 3:
@@ -163,7 +165,7 @@ def plot_trajectory(system: Any, ev: dict[str, Any], title: str = "") -> bytes:
     axes = np.atleast_1d(axes)
     ax = axes[0]
     if res is not None:
-        gt_ts, gt_P = ev["_gt"]
+        _gt_ts, gt_P = ev["_gt"]
         est_P = res.aligned_positions
         # Top view: the plane of the two largest principal directions of the ground truth.
         c = gt_P.mean(0)
@@ -198,12 +200,14 @@ def plot_trajectory(system: Any, ev: dict[str, Any], title: str = "") -> bytes:
     return buf.getvalue()
 
 
-def write_outputs(out_dir: str | Path, system: Any, sequence: Any, meta: dict[str, Any]) -> dict[str, Any]:
+def write_outputs(
+    out_dir: str | Path, system: Any, sequence: Any, meta: dict[str, Any]
+) -> dict[str, Any]:
     """Compute every output in memory, then write each file atomically; returns the summary."""
     from mslam_ref import io as mio
 
     out_dir = Path(out_dir)
-    idx, ts, T = system.frame_poses()
+    _idx, ts, T = system.frame_poses()
     _, kts, kT = system.keyframe_poses()
     xyz, rgb = reconstruction_points(system)
     ev = evaluate_run(system, sequence)

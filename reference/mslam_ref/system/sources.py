@@ -197,7 +197,9 @@ def open_source(
             "can make pointmaps; use --prior mast3r with your own MASt3R install and checkpoint"
         )
     if prior_name in ("synthetic", "rgbd") and not seq.has_depth:
-        raise ValueError(f"{source}: the {prior_name} prior needs depth images; the source has none")
+        raise ValueError(
+            f"{source}: the {prior_name} prior needs depth images; the source has none"
+        )
     if prior_name == "synthetic" and (seq.T_WC is None or seq.K is None):
         raise ValueError(f"{source}: the synthetic prior needs ground-truth poses and intrinsics")
     if cfg.dataset.subsample > 1:
