@@ -73,12 +73,21 @@ def _iter_proj_k(
 
 
 @ti.kernel
-def _refine_k(D11: nd, D21: nd, P1: nd, out: nd, radius: ti.i32, dmax: ti.i32):
-    H, W = D11.shape[1], D11.shape[2]
-    for b, n in ti.ndrange(D21.shape[0], D21.shape[1]):
+def _refine_k(
+    D11: nd, D21: nd, P1: nd, out: nd, H: ti.i32, W: ti.i32, radius: ti.i32, dmax: ti.i32
+):
+    for b, n in ti.ndrange(P1.shape[0], P1.shape[1]):
         u, v = K.refine_pixel(
-            D11, D21, b, n, ti.cast(P1[b, n, 0], ti.i32), ti.cast(P1[b, n, 1], ti.i32),
-            H, W, radius, dmax,
+            D11,
+            D21,
+            b,
+            b * P1.shape[1] + n,
+            ti.cast(P1[b, n, 0], ti.i32),
+            ti.cast(P1[b, n, 1], ti.i32),
+            H,
+            W,
+            radius,
+            dmax,
         )
         out[b, n, 0] = u
         out[b, n, 1] = v
@@ -86,9 +95,21 @@ def _refine_k(D11: nd, D21: nd, P1: nd, out: nd, radius: ti.i32, dmax: ti.i32):
 
 @ti.kernel
 def _match_k(
-    X11: nd, X21: nd, D11: nd, D21: nd, idx0: nd, use_init: ti.i32, RG: nd,
-    idx: nd, valid: nd, max_iter: ti.i32, lam0: float, thresh: float, dist_thresh: float,
-    radius: ti.i32, dmax: ti.i32,
+    X11: nd,
+    X21: nd,
+    D11: nd,
+    D21: nd,
+    idx0: nd,
+    use_init: ti.i32,
+    RG: nd,
+    idx: nd,
+    valid: nd,
+    max_iter: ti.i32,
+    lam0: float,
+    thresh: float,
+    dist_thresh: float,
+    radius: ti.i32,
+    dmax: ti.i32,
 ):
     _ray_image(X11, RG)
     H, W = X11.shape[1], X11.shape[2]
@@ -99,7 +120,15 @@ def _match_k(
         X2 = ti.Vector([X21[b, n, 0], X21[b, n, 1], X21[b, n, 2]])
         t = K.normalize3(X2)
         u_f, v_f, conv = K.lm_pixel(
-            RG, b, t, ti.cast(i0 % W, float), ti.cast(i0 // W, float), H, W, max_iter, lam0,
+            RG,
+            b,
+            t,
+            ti.cast(i0 % W, float),
+            ti.cast(i0 // W, float),
+            H,
+            W,
+            max_iter,
+            lam0,
             thresh,
         )
         u, v = ti.cast(u_f, ti.i32), ti.cast(v_f, ti.i32)  # truncation (u_f, v_f >= 1)
@@ -112,7 +141,7 @@ def _match_k(
             and ti.sqrt(K.dot3(X1, X1)) > K.NORM_EPS
         )
         if radius > 0:
-            u, v = K.refine_pixel(D11, D21, b, n, u, v, H, W, radius, dmax)
+            u, v = K.refine_pixel(D11, D21, b, b * H * W + n, u, v, H, W, radius, dmax)
         idx[b, n] = ti.cast(u, ti.i64) + ti.cast(W, ti.i64) * ti.cast(v, ti.i64)
         valid[b, n] = ti.cast(1 if ok else 0, ti.u8)
 
@@ -169,7 +198,10 @@ def ray_image_and_gradients(X11: Any) -> Array:
 
 
 def iter_proj(
-    rays_with_grad: Any, X21: Any, p_init: Any, cfg: MatchingConfig = MatchingConfig()
+    rays_with_grad: Any,
+    X21: Any,
+    p_init: Any,
+    cfg: MatchingConfig = MatchingConfig(),  # noqa: B008 (frozen, immutable)
 ) -> tuple[Array, Array]:
     """Taichi twin of ``mslam_ref.matching.iter_proj`` (one thread per target pixel)."""
     RG, batched = _ref._image_batch(rays_with_grad, "rays_with_grad", 9)
@@ -182,19 +214,31 @@ def iter_proj(
     p0 = np.asarray(p_init)
     if p0.shape != (*t.shape[:-1], 2):
         raise ValueError(f"p_init: expected shape {(*t.shape[:-1], 2)}, got {p0.shape}")
-    t = _points(t).reshape(B, -1, 3)
-    p0 = _float(p0, "p_init").reshape(B, -1, 2)
+    N = t.shape[-2]
+    t = _points(t).reshape(B, N, 3)
+    p0 = _float(p0, "p_init").reshape(B, N, 2)
     P = np.empty_like(p0)
     conv = np.zeros(p0.shape[:-1], dtype=np.uint8)
     if P.size:
         _iter_proj_k(
-            RG, t, p0, P, conv, int(cfg.max_iter), float(cfg.lambda_init),
+            RG,
+            t,
+            p0,
+            P,
+            conv,
+            int(cfg.max_iter),
+            float(cfg.lambda_init),
             float(cfg.convergence_thresh),
         )
     return (P, _flags(conv)) if batched else (P[0], _flags(conv[0]))
 
 
-def refine_matches(D11: Any, D21: Any, p1: Any, cfg: MatchingConfig = MatchingConfig()) -> Array:
+def refine_matches(
+    D11: Any,
+    D21: Any,
+    p1: Any,
+    cfg: MatchingConfig = MatchingConfig(),  # noqa: B008 (frozen, immutable)
+) -> Array:
     """Taichi twin of ``mslam_ref.matching.refine_matches`` (245 unrolled dot products/thread)."""
     D1, batched = _ref._image_batch(D11, "D11", None)
     B, H, W, F = D1.shape
@@ -202,11 +246,12 @@ def refine_matches(D11: Any, D21: Any, p1: Any, cfg: MatchingConfig = MatchingCo
     D2 = np.asarray(D21)
     if D2.ndim != len(lead) + 2 or D2.shape[:-2] != lead or D2.shape[-1] != F:
         raise ValueError(f"D21: expected shape (N, {F}) or (B, N, {F}), got {D2.shape}")
-    p = _ref._int_pixels(p1, "p1", (*D2.shape[:-1], 2), H, W).reshape(B, -1, 2)
-    D1, D2 = _descriptors(D1, "D11"), _descriptors(D2.reshape(B, -1, F), "D21")
+    N = D2.shape[-2]
+    p = _ref._int_pixels(p1, "p1", (*D2.shape[:-1], 2), H, W).reshape(B, N, 2)
+    D1, D2 = _descriptors(D1.reshape(-1, F), "D11"), _descriptors(D2.reshape(-1, F), "D21")
     out = np.empty_like(p)
     if out.size:
-        _refine_k(D1, D2, p, out, int(cfg.radius), int(cfg.dilation_max))
+        _refine_k(D1, D2, p, out, H, W, int(cfg.radius), int(cfg.dilation_max))
     return out if batched else out[0]
 
 
@@ -216,42 +261,41 @@ def match(
     D11: Any,
     D21: Any,
     idx_init: Any = None,
-    cfg: MatchingConfig = MatchingConfig(),
+    cfg: MatchingConfig = MatchingConfig(),  # noqa: B008 (frozen, immutable)
 ) -> tuple[Array, Array]:
     """Taichi twin of ``mslam_ref.matching.match`` (one fused kernel: rays, gradients, LM,
     truncation, distance test, refinement)."""
-    X1, batched = _ref._image_batch(X11, "X11", 3)
-    X2, batched2 = _ref._image_batch(X21, "X21", 3)
-    if X2.shape != X1.shape or batched2 != batched:
-        raise ValueError(f"X21: expected the shape of X11 {np.shape(X11)}, got {np.shape(X21)}")
-    D1, _ = _ref._image_batch(D11, "D11", None)
-    D2, _ = _ref._image_batch(D21, "D21", None)
-    if D1.shape[:-1] != X1.shape[:-1] or np.ndim(D11) != np.ndim(X11):
-        raise ValueError(f"D11: expected shape {(*np.shape(X11)[:-1], 'F')}, got {np.shape(D11)}")
-    if D2.shape != D1.shape or np.ndim(D21) != np.ndim(D11):
-        raise ValueError(f"D21: expected the shape of D11 {np.shape(D11)}, got {np.shape(D21)}")
+    X1, X2, D1, D2, idx0, batched = _ref._check_match_inputs(X11, X21, D11, D21, idx_init)
     B, H, W, F = D1.shape
     N = H * W
-    idx0 = np.zeros((1, 1), dtype=np.int64)
-    if idx_init is not None:
-        idx0 = np.asarray(idx_init)
-        if idx0.size and not np.issubdtype(idx0.dtype, np.integer):
-            raise ValueError(f"idx_init: expected integer indices, got dtype {idx0.dtype}")
-        want = (B, N) if batched else (N,)
-        if idx0.shape != want:
-            raise ValueError(f"idx_init: expected shape {want}, got {idx0.shape}")
-        idx0 = np.ascontiguousarray(idx0, dtype=np.int64).reshape(B, N)
-        if idx0.size and (idx0.min() < 0 or idx0.max() >= N):
-            raise ValueError(f"idx_init: indices must lie in [0, {N})")
+    if idx0 is None:
+        idx0 = np.zeros((1, 1), dtype=np.int64)  # unused by the kernel (use_init = 0)
     X1, X2 = _points(X1), _points(X2).reshape(B, N, 3)
-    D1, D2 = _descriptors(D1, "D11"), _descriptors(D2.reshape(B, N, F), "D21")
+    if cfg.radius > 0:
+        D1 = _descriptors(D1.reshape(B * N, F), "D11")
+        D2 = _descriptors(D2.reshape(B * N, F), "D21")
+    else:  # no refinement: check like the reference, skip the padded copies
+        _float(D1, "D11"), _float(D2, "D21")
+        D1 = D2 = np.zeros((1, _PAD), dtype=X1.dtype)
     idx = np.empty((B, N), dtype=np.int64)
     valid = np.empty((B, N), dtype=np.uint8)
     if B > 0:
         RG = np.empty((B, H, W, 9), dtype=X1.dtype)
         _match_k(
-            X1, X2, D1, D2, idx0, int(idx_init is not None), RG, idx, valid,
-            int(cfg.max_iter), float(cfg.lambda_init), float(cfg.convergence_thresh),
-            float(cfg.dist_thresh), int(cfg.radius), int(cfg.dilation_max),
+            X1,
+            X2,
+            D1,
+            D2,
+            idx0,
+            int(idx_init is not None),
+            RG,
+            idx,
+            valid,
+            int(cfg.max_iter),
+            float(cfg.lambda_init),
+            float(cfg.convergence_thresh),
+            float(cfg.dist_thresh),
+            int(cfg.radius),
+            int(cfg.dilation_max),
         )
     return (idx, _flags(valid)) if batched else (idx[0], _flags(valid[0]))

@@ -10,7 +10,12 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
+
+# One BLAS thread before NumPy loads: the small dense factorisations here (BA reduced camera
+# system, backend) are several times slower with two threads on a busy 2-core machine.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 from collections.abc import Sequence
 
 from mslam_ref import __version__

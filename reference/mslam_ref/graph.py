@@ -225,6 +225,7 @@ class FactorGraph:
     """
 
     edges: list[Edge] = field(default_factory=list)
+    candidates_tested: int = 0
 
     def __len__(self) -> int:
         return len(self.edges)
@@ -251,6 +252,7 @@ class FactorGraph:
         Consecutive edges get ``kind = "consecutive"``, the others ``kind``.
         """
         candidates = match_pairs(store, ii, jj, prior, kernels, matching_cfg, Q_conf)
+        self.candidates_tested += len(candidates)
         keep = []
         for e in candidates:
             consecutive = e.i == e.j - 1

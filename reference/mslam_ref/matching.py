@@ -231,8 +231,10 @@ def bilinear_sample(img: Any, u: Any, v: Any) -> FloatArray:
     if img.ndim == 3:
         return bilinear_sample(img[None], u[None], v[None])[0]
     if img.ndim != 4 or u.shape != v.shape or u.shape[:1] != img.shape[:1] or u.ndim != 2:
-        raise ValueError(f"img, u, v: expected (B, H, W, C), (B, N), (B, N); got {img.shape}, "
-                         f"{u.shape}, {v.shape}")
+        raise ValueError(
+            f"img, u, v: expected (B, H, W, C), (B, N), (B, N); got {img.shape}, "
+            f"{u.shape}, {v.shape}"
+        )
     B, H, W, C = img.shape
     if np.any(~(u >= 0) | (u > W - 2) | ~(v >= 0) | (v > H - 2)):
         raise ValueError("u, v: positions must lie in [0, W-2] x [0, H-2]")
@@ -273,8 +275,9 @@ def iter_proj(
             else:                   λ *= 10,          converged = cost  < thresh
 
     Numerics: a 2x2 determinant <= DET_MIN (1e-30; only from rounding or zero gradients) gives
-    δ = 0, so every step is finite; a huge step is clamped to the border like any other. Zero
-    targets never converge (cost >= 1).
+    δ = 0, so every step is finite; a huge step is clamped to the border like any other. A zero
+    target (zero or non-finite point) has cost 1 everywhere: it keeps its clamped start and
+    never converges (upstream would let rounding noise move it).
 
     Args:
         rays_with_grad: (H, W, 9) or (B, H, W, 9) from :func:`ray_image_and_gradients`.
@@ -297,7 +300,9 @@ def iter_proj(
         raise ValueError(f"X21: expected shape (N, 3), or (B, N, 3) with B={B}, got {t.shape}")
     if p0.shape != (*t.shape[:-1], 2):
         raise ValueError(f"p_init: expected shape {(*t.shape[:-1], 2)}, got {p0.shape}")
-    t, p0 = t.reshape(B, -1, 3), p0.reshape(B, -1, 2)
+    N = t.shape[-2]
+    t, p0 = t.reshape(B, N, 3), p0.reshape(B, N, 2)
+    has_ray = _point_ok(t)  # a zero target (zero or non-finite point) keeps its start
     u = np.clip(p0[..., 0], 1.0, W - 2.0)
     v = np.clip(p0[..., 1], 1.0, H - 2.0)
     lam = np.full(u.shape, float(cfg.lambda_init))
@@ -319,11 +324,11 @@ def iter_proj(
         v_new = np.clip(v + dv, 1.0, H - 2.0)
         S_new = bilinear_sample(RG, u_new, v_new)
         new_cost, _ = _ray_cost(S_new, t)
-        acc = new_cost < cost
+        acc = (new_cost < cost) & has_ray
         u, v = np.where(acc, u_new, u), np.where(acc, v_new, v)
         S = np.where(acc[..., None], S_new, S)
         lam = np.where(acc, lam * 0.1, lam * 10.0)
-        converged = np.where(acc, new_cost, cost) < cfg.convergence_thresh
+        converged = (np.where(acc, new_cost, cost) < cfg.convergence_thresh) & has_ray
     p = np.stack([u, v], axis=-1)
     return (p, converged) if batched else (p[0], converged[0])
 
@@ -331,9 +336,7 @@ def iter_proj(
 # --- §4.4 descriptor refinement ----------------------------------------------------------------
 
 
-def refine_matches(
-    D11: Any, D21: Any, p1: Any, cfg: MatchingConfig = MatchingConfig()
-) -> IntArray:
+def refine_matches(D11: Any, D21: Any, p1: Any, cfg: MatchingConfig = MatchingConfig()) -> IntArray:
     """Coarse-to-fine search for the best descriptor similarity around each integer match.
 
     Paper: §3.2 (feature refinement). Upstream: matching_kernels.cu::refine_matches_kernel.
@@ -364,8 +367,9 @@ def refine_matches(
     D2 = as_float_array(D21, "D21")
     if D2.ndim != len(lead) + 2 or D2.shape[:-2] != lead or D2.shape[-1] != F:
         raise ValueError(f"D21: expected shape (N, {F}) or (B, N, {F}), got {D2.shape}")
-    p = _int_pixels(p1, "p1", (*D2.shape[:-1], 2), H, W).reshape(B, -1, 2)
-    D2 = D2.reshape(B, -1, F)
+    N = D2.shape[-2]
+    p = _int_pixels(p1, "p1", (*D2.shape[:-1], 2), H, W).reshape(B, N, 2)
+    D2 = D2.reshape(B, N, F)
     flat = D1.reshape(B, H * W, F)
     b = np.arange(B)[:, None]
     u0, v0 = p[..., 0], p[..., 1]
@@ -404,34 +408,31 @@ def _int_pixels(p: Any, name: str, shape: tuple[int, ...], H: int, W: int) -> In
 # --- §4.3 + §4.5 the entry point -----------------------------------------------------------------
 
 
-def _check_match_inputs(
-    X11: Any, X21: Any, D11: Any, D21: Any, idx_init: Any
-) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, IntArray | None, bool]:
-    """Validate the inputs of :func:`match`; return batched (B, ...) arrays and the batch flag."""
+def _check_match_inputs(X11: Any, X21: Any, D11: Any, D21: Any, idx_init: Any) -> tuple:
+    """Shape checks of :func:`match` (shared with the fast twin): returns the four inputs as
+    (B, H, W, C) arrays (not converted), ``idx_init`` as (B, N) int64 or None, and the flag."""
     X1, batched = _image_batch(X11, "X11", 3)
     X2, batched2 = _image_batch(X21, "X21", 3)
     if X2.shape != X1.shape or batched2 != batched:
         raise ValueError(f"X21: expected the shape of X11 {np.shape(X11)}, got {np.shape(X21)}")
-    D1, _ = _image_batch(D11, "D11", None)
-    D2, _ = _image_batch(D21, "D21", None)
-    if D1.shape[:-1] != X1.shape[:-1] or np.ndim(D11) != np.ndim(X11):
+    D1, b1 = _image_batch(D11, "D11", None)
+    D2, b2 = _image_batch(D21, "D21", None)
+    if D1.shape[:-1] != X1.shape[:-1] or b1 != batched:
         raise ValueError(f"D11: expected shape {(*np.shape(X11)[:-1], 'F')}, got {np.shape(D11)}")
-    if D2.shape != D1.shape or np.ndim(D21) != np.ndim(D11):
+    if D2.shape != D1.shape or b2 != batched:
         raise ValueError(f"D21: expected the shape of D11 {np.shape(D11)}, got {np.shape(D21)}")
-    D1, D2 = as_float_array(D1, "D11"), as_float_array(D2, "D21")
     B, H, W, _ = X1.shape
-    idx = None
-    if idx_init is not None:
-        idx = np.asarray(idx_init)
-        if idx.size and not np.issubdtype(idx.dtype, np.integer):
-            raise ValueError(f"idx_init: expected integer indices, got dtype {idx.dtype}")
-        want = (B, H * W) if batched else (H * W,)
-        if idx.shape != want:
-            raise ValueError(f"idx_init: expected shape {want}, got {idx.shape}")
-        idx = idx.astype(np.int64).reshape(B, H * W)
-        if np.any((idx < 0) | (idx >= H * W)):
-            raise ValueError(f"idx_init: indices must lie in [0, {H * W})")
-    return _points(X1, "X11"), _points(X2, "X21"), D1, D2, idx, batched
+    if idx_init is None:
+        return X1, X2, D1, D2, None, batched
+    idx = np.asarray(idx_init)
+    if idx.size and not np.issubdtype(idx.dtype, np.integer):
+        raise ValueError(f"idx_init: expected integer indices, got dtype {idx.dtype}")
+    if idx.shape != ((B, H * W) if batched else (H * W,)):
+        raise ValueError(f"idx_init: expected shape (B, N) or (N,), N={H * W}, got {idx.shape}")
+    idx = np.ascontiguousarray(idx, dtype=np.int64).reshape(B, H * W)
+    if idx.size and (idx.min() < 0 or idx.max() >= H * W):
+        raise ValueError(f"idx_init: indices must lie in [0, {H * W})")
+    return X1, X2, D1, D2, idx, batched
 
 
 def _initial_pixels(idx_init: IntArray | None, B: int, H: int, W: int) -> FloatArray:
@@ -472,6 +473,8 @@ def match(
         valid: (N,) or (B, N) bool. Zero or non-finite points (own or matched) are invalid.
     """
     X1, X2, D1, D2, idx0, batched = _check_match_inputs(X11, X21, D11, D21, idx_init)
+    X1, X2 = _points(X1, "X11"), _points(X2, "X21")
+    D1, D2 = as_float_array(D1, "D11"), as_float_array(D2, "D21")
     B, H, W, F = D1.shape
     N = H * W
     X2f, X1f = X2.reshape(B, N, 3), X1.reshape(B, N, 3)

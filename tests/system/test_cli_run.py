@@ -163,3 +163,20 @@ def test_unreadable_frames_are_skipped_and_counted(tmp_path, monkeypatch, fast64
     assert rc == 0
     s = json.loads((out / "summary.json").read_text())
     assert s["skipped_frames"] == 2 and s["frames"] == 10
+
+
+def test_config_inherit_and_overrides(tmp_path):
+    from mslam_ref.config import load_config
+
+    child = tmp_path / "mine.yaml"
+    child.write_text("inherit: calib\ntracking:\n  Q_conf: 2\nretrieval:\n  k: 5\n")
+    cfg = load_config(child, ["local_opt.max_iters=4", "matching.dist_thresh=1e-2"])
+    assert cfg.use_calib and cfg.dataset.subsample == 2  # from calib.yaml
+    assert cfg.tracking().Q_conf == 2.0 and cfg.retrieval.k == 5  # child
+    assert cfg.backend().max_iters == 4 and cfg.matching().dist_thresh == 0.01  # --set
+    assert cfg.tracking().sigma_ray == 0.003  # base default
+    assert cfg.fusion().filtering_mode == "weighted_pointmap"
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("trackin:\n  Q_conf: 2\n")
+    with pytest.raises(ValueError, match="unknown config key 'trackin'"):
+        load_config(bad)

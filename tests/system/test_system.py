@@ -147,3 +147,22 @@ def test_calibrated_mode_runs():
     assert system.K is not None
     idx, _, T = system.frame_poses()
     assert len(idx) == len(src.sequence) and np.all(np.isfinite(T))
+
+
+def test_ref_run_never_imports_taichi():
+    import subprocess
+    import sys
+
+    code = (
+        "import sys\n"
+        "from mslam_ref.cli import main\n"
+        "rc = main(['run', 'synthetic:loop:40:48x36', '--out', sys.argv[1], '--kernels', 'ref',"
+        " '--max-frames', '4', '--quiet'])\n"
+        "assert rc == 0, rc\n"
+        "assert 'taichi' not in sys.modules and 'mslam_fast' not in sys.modules\n"
+    )
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        res = subprocess.run([sys.executable, "-c", code, tmp], capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr[-2000:]

@@ -107,7 +107,10 @@ def lm_pixel(RG: ti.template(), b, t, u_init, v_init, H, W, max_iter, lam0, thre
     lam = lam0
     conv = 0
     S = sample9(RG, b, u, v)
-    for _ in range(max_iter):
+    n_iter = max_iter
+    if ti.sqrt(dot3(t, t)) <= NORM_EPS:
+        n_iter = 0  # a zero target keeps its clamped start (as the reference)
+    for _ in range(n_iter):
         cost, e = ray_cost(S, t)
         gx = ti.Vector([S[3], S[4], S[5]])
         gy = ti.Vector([S[6], S[7], S[8]])
@@ -137,16 +140,19 @@ def lm_pixel(RG: ti.template(), b, t, u_init, v_init, H, W, max_iter, lam0, thre
 
 
 @ti.func
-def refine_pixel(D11: ti.template(), D21: ti.template(), b, n, u_start, v_start, H, W, radius, dmax):
+def refine_pixel(
+    D11: ti.template(), D21: ti.template(), b, row2, u_start, v_start, H, W, radius, dmax
+):
     """Coarse-to-fine descriptor search of ``mslam_ref.matching.refine_matches``; returns (u, v).
 
-    The dot product is a runtime-length loop over the (zero-padded) descriptor axis, which
-    LLVM's loop vectoriser turns into AVX code (an unrolled ``ti.static`` loop stays scalar);
-    the host pads F to a multiple of 16 so that no scalar remainder runs. ``best`` starts at
-    0.0 (``REFINE_BEST_INIT``).
+    ``D11`` is (B·H·W, Fp) and ``D21`` (B·N, Fp): rows of zero-padded descriptors; the target's
+    row is ``row2`` and image 1 is batch element ``b``. The dot
+    product is a runtime-length loop over Fp, which LLVM's loop vectoriser turns into AVX code
+    (an unrolled ``ti.static`` loop stays scalar); the host pads F to a multiple of 16 so that
+    no scalar remainder runs. ``best`` starts at 0.0 (``REFINE_BEST_INIT``).
     """
-    Fp = D11.shape[3]
-    best = D21[b, n, 0] * 0.0
+    Fp = D11.shape[1]
+    best = D21[row2, 0] * 0.0
     u0, v0 = u_start, v_start
     ub, vb = u_start, v_start
     for level in range(dmax):
@@ -158,9 +164,10 @@ def refine_pixel(D11: ti.template(), D21: ti.template(), b, n, u_start, v_start,
                 for j in range(2 * radius + 1):
                     v = v0 - rd + j * d
                     if 0 <= v < H:
-                        s = D21[b, n, 0] * 0.0
+                        row1 = (b * H + v) * W + u
+                        s = D21[row2, 0] * 0.0
                         for k in range(Fp):
-                            s += D21[b, n, k] * D11[b, v, u, k]
+                            s += D21[row2, k] * D11[row1, k]
                         if s > best:
                             best = s
                             ub, vb = u, v

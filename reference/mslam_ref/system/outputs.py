@@ -121,6 +121,7 @@ def summary_dict(system: Any, meta: dict[str, Any], ev: dict[str, Any]) -> dict[
         "frames_with_pose": len(system.frame_poses()[0]),
         "keyframes": len(system.keyframes),
         "edges": len(graph),
+        "edge_candidates_tested": graph.candidates_tested,
         "loop_closure_edges": graph.count("retrieval"),
         "longest_loop_closure_span": max(spans, default=0),
         "relocalisations": st.relocalisations,
@@ -169,7 +170,7 @@ def plot_trajectory(system: Any, ev: dict[str, Any], title: str = "") -> bytes:
         est_P = res.aligned_positions
         # Top view: the plane of the two largest principal directions of the ground truth.
         c = gt_P.mean(0)
-        _, _, Vt = np.linalg.svd(gt_P - c, full_matrices=False)
+        _, _, Vt = np.linalg.svd(gt_P - c, full_matrices=True)
         B = Vt[:2].T
         g2, e2 = (gt_P - c) @ B, (est_P - c) @ B
         ax.plot(g2[:, 0], g2[:, 1], "-", color="0.5", lw=2, label="ground truth")
@@ -186,9 +187,9 @@ def plot_trajectory(system: Any, ev: dict[str, Any], title: str = "") -> bytes:
     elif len(T):
         P = T[:, :3]
         c = P.mean(0)
-        _, _, Vt = np.linalg.svd(P - c, full_matrices=False)
+        _, _, Vt = np.linalg.svd(P - c, full_matrices=True)
         p2 = (P - c) @ Vt[:2].T
-        ax.plot(p2[:, 0], p2[:, 1], "-", color="C3", label="estimate")
+        ax.plot(p2[:, 0], p2[:, 1], ".-", color="C3", label="estimate")
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_title(title or "trajectory, top view")
     ax.legend(loc="best", fontsize=8)

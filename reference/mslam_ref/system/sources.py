@@ -176,7 +176,7 @@ def open_source(
         seq = datasets.load_sequence(str(source), calib=cal)
     if len(seq) == 0:
         raise ValueError(f"{source}: the sequence has no frames")
-    first = seq[0]
+    first = _first_readable(seq, str(source or "synthetic"))
     H, W = first.shape
     if cal is not None:
         if (cal.width, cal.height) != (W, H):
@@ -213,8 +213,19 @@ def open_source(
     p = _make_prior(prior_name, seq)
     K = seq.K if use_calib else None
     if K is not None and hasattr(p, "network_intrinsics"):
-        K = p.network_intrinsics(K, seq[0])  # pointmaps come at the network resolution
+        K = p.network_intrinsics(K, first)  # pointmaps come at the network resolution
     return Source(seq, p, prior_name, K, seq.name or str(source))
+
+
+def _first_readable(seq: Any, name: str, tries: int = 10) -> Frame:
+    """The first frame that loads (the size and calibration checks need one)."""
+    last = None
+    for i in range(min(tries, len(seq))):
+        try:
+            return seq[i]
+        except (OSError, ValueError, cv2.error) as exc:
+            last = exc
+    raise ValueError(f"{name}: cannot read any of the first {min(tries, len(seq))} frames ({last})")
 
 
 class _Truncated(FrameSequence):
