@@ -239,7 +239,7 @@ def refine_matches(
     p1: Any,
     cfg: MatchingConfig = MatchingConfig(),  # noqa: B008 (frozen, immutable)
 ) -> Array:
-    """Taichi twin of ``mslam_ref.matching.refine_matches`` (245 unrolled dot products/thread)."""
+    """Taichi twin of ``mslam_ref.matching.refine_matches`` (245 vectorised dot products/thread)."""
     D1, batched = _ref._image_batch(D11, "D11", None)
     B, H, W, F = D1.shape
     lead = (B,) if batched else ()

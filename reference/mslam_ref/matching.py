@@ -8,7 +8,7 @@ in the ray image of camera 1, starting from an initial guess (the identity, or t
 frame's matches). The integer match then gets a 3-D distance (occlusion) test and is refined by
 a coarse-to-fine search for the best descriptor similarity around it.
 
-    p*(n) = argmin_p ‖ψ(X11(p)) − ψ(X21[n])‖²                   (paper Eq. 2, LM over p)
+    p*(n) = argmin_p ‖ψ(X11(p)) − ψ(X21[n])‖²                   (§3.2, LM over p)
     valid = converged ∧ ‖X11[⌊p*⌋] − X21[n]‖ < dist_thresh       (occlusion test)
     p(n)  = argmax_{p ∈ window(⌊p*⌋)} D21[n] · D11[p]            (descriptor refinement)
 
@@ -263,7 +263,7 @@ def iter_proj(
 ) -> tuple[FloatArray, BoolArray]:
     """Per-pixel Levenberg–Marquardt on the pixel position p = (u, v) in image 1.
 
-    Paper: §3.2, Eq. (2)–(3). Upstream: matching_kernels.cu::iter_proj_kernel.
+    Paper: §3.2 (iterative projective matching). Upstream: matching_kernels.cu::iter_proj_kernel.
 
         clamp u to [1, W−2], v to [1, H−2];  λ = lambda_init
         repeat max_iter times (no early exit):

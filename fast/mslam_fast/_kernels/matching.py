@@ -8,7 +8,7 @@ expression is written in the order of the NumPy reference (dot products of 3-vec
 agree bit for bit up to LLVM's fused multiply-adds.
 
 Arrays (Taichi ndarrays): ray image ``RG (B, H, W, 9)`` = [R, gx, gy]; points ``(B, H, W, 3)``
-or ``(B, N, 3)``; descriptors ``D11 (B, H, W, F)``, ``D21 (B, N, F)``.
+or ``(B, N, 3)``; descriptors as zero-padded rows ``D11 (B·H·W, Fp)``, ``D21 (B·N, Fp)``.
 """
 
 import taichi as ti
@@ -122,7 +122,7 @@ def lm_pixel(RG: ti.template(), b, t, u_init, v_init, H, W, max_iter, lam0, thre
         det = A00 * A11 - A01 * A01
         du = 0.0 * lam
         dv = 0.0 * lam
-        if det > DET_MIN:  # Eq. (3): closed-form 2x2 solve of (JᵀJ + λI) δ = −Jᵀe
+        if det > DET_MIN:  # §3.2: closed-form 2x2 solve of (JᵀJ + λI) δ = −Jᵀe
             du = (A11 * b0 - A01 * b1) / det
             dv = (A00 * b1 - A01 * b0) / det
         u_new = clamp(u + du, 1.0, W - 2.0)
