@@ -72,14 +72,32 @@ def _iter_proj_k(
         conv[b, n] = ti.cast(c, ti.u8)
 
 
+@ti.func
+def _copy_rows(D: ti.template(), Dp: ti.template()):
+    """Rows of ``D (M, F)`` (any float type) into the zeroed ``Dp (M, Fp)`` (runtime type)."""
+    for r, k in ti.ndrange(D.shape[0], D.shape[1]):
+        Dp[r, k] = ti.cast(D[r, k], float)
+
+
 @ti.kernel
 def _refine_k(
-    D11: nd, D21: nd, P1: nd, out: nd, H: ti.i32, W: ti.i32, radius: ti.i32, dmax: ti.i32
+    D11: nd,
+    D21: nd,
+    D1p: nd,
+    D2p: nd,
+    P1: nd,
+    out: nd,
+    H: ti.i32,
+    W: ti.i32,
+    radius: ti.i32,
+    dmax: ti.i32,
 ):
+    K.pad_descriptors(D11, D1p, H, W, radius * dmax)
+    _copy_rows(D21, D2p)
     for b, n in ti.ndrange(P1.shape[0], P1.shape[1]):
         u, v = K.refine_pixel(
-            D11,
-            D21,
+            D1p,
+            D2p,
             b,
             b * P1.shape[1] + n,
             ti.cast(P1[b, n, 0], ti.i32),
@@ -99,6 +117,8 @@ def _match_k(
     X21: nd,
     D11: nd,
     D21: nd,
+    D1p: nd,
+    D2p: nd,
     idx0: nd,
     use_init: ti.i32,
     RG: nd,
@@ -113,6 +133,8 @@ def _match_k(
 ):
     _ray_image(X11, RG)
     H, W = X11.shape[1], X11.shape[2]
+    K.pad_descriptors(D11, D1p, H, W, radius * dmax)  # top level (parallel): no `if radius > 0`
+    _copy_rows(D21, D2p)
     for b, n in ti.ndrange(X21.shape[0], X21.shape[1]):
         i0 = n
         if use_init != 0:
@@ -141,7 +163,7 @@ def _match_k(
             and ti.sqrt(K.dot3(X1, X1)) > K.NORM_EPS
         )
         if radius > 0:
-            u, v = K.refine_pixel(D11, D21, b, b * H * W + n, u, v, H, W, radius, dmax)
+            u, v = K.refine_pixel(D1p, D2p, b, b * H * W + n, u, v, H, W, radius, dmax)
         idx[b, n] = ti.cast(u, ti.i64) + ti.cast(W, ti.i64) * ti.cast(v, ti.i64)
         valid[b, n] = ti.cast(1 if ok else 0, ti.u8)
 
@@ -169,18 +191,27 @@ def _points(x: Any) -> Array:
 
 
 def _descriptors(x: Any, name: str) -> Array:
-    """Runtime-dtype copy of finite descriptors, zero-padded along F to a multiple of 16.
+    """Finite descriptors as a contiguous float array, not copied when already one.
 
-    Zero padding leaves every dot product unchanged and lets the vectorised loop of
-    ``refine_pixel`` run without a scalar remainder (F = 24 -> 32).
+    The kernel itself casts them to the runtime type into zero-padded scratch arrays
+    (``_scratch``), in parallel, so the host does no per-element work but the finiteness check.
     """
     x = np.asarray(x)
-    F = x.shape[-1]
-    out = np.zeros((*x.shape[:-1], -(-F // _PAD) * _PAD), dtype=ensure_init().dtype)
-    out[..., :F] = x
-    if out.size and not np.isfinite(out.sum(dtype=np.float64)) and not np.isfinite(out).all():
+    if x.dtype not in (np.float32, np.float64):
+        x = x.astype(ensure_init().dtype)
+    x = np.ascontiguousarray(x)
+    if x.size and not np.isfinite(x.sum(dtype=np.float64)) and not np.isfinite(x).all():
         raise ValueError(f"{name}: contains non-finite values (NaN or inf)")
-    return out
+    return x
+
+
+def _scratch(B: int, H: int, W: int, F: int, N: int, pad: int) -> tuple[Array, Array]:
+    """Zeroed runtime-type scratch: image-1 descriptors with a border of ``pad`` zero pixels,
+    as rows ``(B·(H + 2 pad)·(W + 2 pad), Fp)``, and target rows ``(B·N, Fp)``; F zero-padded to a
+    multiple of 16 so that the vectorised dot product runs without a scalar remainder."""
+    Fp = -(-F // _PAD) * _PAD
+    dt = ensure_init().dtype
+    return np.zeros((B * (H + 2 * pad) * (W + 2 * pad), Fp), dt), np.zeros((B * N, Fp), dt)
 
 
 def _flags(a: Array) -> Array:
@@ -251,7 +282,9 @@ def refine_matches(
     D1, D2 = _descriptors(D1.reshape(-1, F), "D11"), _descriptors(D2.reshape(-1, F), "D21")
     out = np.empty_like(p)
     if out.size:
-        _refine_k(D1, D2, p, out, H, W, int(cfg.radius), int(cfg.dilation_max))
+        radius, dmax = int(cfg.radius), int(cfg.dilation_max)
+        D1p, D2p = _scratch(B, H, W, F, N, max(radius * dmax, 0))
+        _refine_k(D1, D2, D1p, D2p, p, out, H, W, radius, dmax)
     return out if batched else out[0]
 
 
@@ -271,12 +304,13 @@ def match(
     if idx0 is None:
         idx0 = np.zeros((1, 1), dtype=np.int64)  # unused by the kernel (use_init = 0)
     X1, X2 = _points(X1), _points(X2).reshape(B, N, 3)
+    D1 = _descriptors(D1.reshape(B * N, F), "D11")
+    D2 = _descriptors(D2.reshape(B * N, F), "D21")
     if cfg.radius > 0:
-        D1 = _descriptors(D1.reshape(B * N, F), "D11")
-        D2 = _descriptors(D2.reshape(B * N, F), "D21")
-    else:  # no refinement: check like the reference, skip the padded copies
-        _float(D1, "D11"), _float(D2, "D21")
-        D1 = D2 = np.zeros((1, _PAD), dtype=X1.dtype)
+        D1p, D2p = _scratch(B, H, W, F, N, int(cfg.radius) * int(cfg.dilation_max))
+    else:  # no refinement: one-row stand-ins, so the kernel's copy loops are trivial
+        D1 = D2 = np.zeros((1, F), X1.dtype)
+        D1p, D2p = _scratch(1, 1, 1, F, 1, 0)
     idx = np.empty((B, N), dtype=np.int64)
     valid = np.empty((B, N), dtype=np.uint8)
     if B > 0:
@@ -286,6 +320,8 @@ def match(
             X2,
             D1,
             D2,
+            D1p,
+            D2p,
             idx0,
             int(idx_init is not None),
             RG,

@@ -55,9 +55,17 @@ def _row(J, r):
     return ti.Vector([J[r, b] for b in ti.static(range(7))])
 
 
+@ti.func
+def _load3(A: ti.template(), k):
+    """Point k of a flat (3N,) array: the stride 3 is a compile-time constant (a runtime
+    (N, 3) shape would make LLVM version the vectorised pixel loop on a stride-1 check that
+    fails, falling back to scalar code)."""
+    return ti.Vector([A[3 * k], A[3 * k + 1], A[3 * k + 2]])
+
+
 @ti.kernel
 def _linearize_k(T: nd, Xf: nd, Xk: nd, Q: nd, valid: nd, prm: nd, out: nd, calib: ti.template()):
-    n = Xf.shape[0]
+    n = Q.shape[0]
     for c in range(out.shape[0]):
         acc = ti.Vector.zero(ti.f64, KT.NACC)
         Tv = S.load(T, 0, 8)
@@ -65,47 +73,44 @@ def _linearize_k(T: nd, Xf: nd, Xk: nd, Q: nd, valid: nd, prm: nd, out: nd, cali
         s2_inv = ti.cast(1.0 / prm[1], float)
         hk = ti.cast(prm[2], float)
         for k in range(c * CHUNK, ti.min(c * CHUNK + CHUNK, n)):
-            if valid[k] != 0:
+            if ti.static(not calib):  # branch-free: an invalid pixel gets zero inputs, weight 0
+                ok = valid[k] != 0
+                zero3 = ti.Vector([0.0, 0.0, 0.0])
+                sq = ti.sqrt(ti.select(ok, Q[k], 0.0))
+                P = S.sim3_act(Tv, ti.select(ok, _load3(Xf, k), zero3))
+                p, d, inv_d = KT.unit_norm_inv(P)
+                pk, dk = KT.unit_and_norm(ti.select(ok, _load3(Xk, k), zero3))
+                KT.accumulate_rays(acc, p, inv_d, pk - p, sq * s1_inv, hk)
+                e, si = dk - d, sq * s2_inv
+                Jd = ti.Vector([p[0], p[1], p[2], 0.0, 0.0, 0.0, d])  # distance row
+                KT.accumulate(acc, Jd, e, si * si * KT.huber(si * e, hk), KT.ZERO_DIST)
+            elif valid[k] != 0:  # log() does not vectorise: branches are cheaper here
+                fx, fy = ti.cast(prm[3], float), ti.cast(prm[4], float)
+                cx, cy = ti.cast(prm[5], float), ti.cast(prm[6], float)
+                border, eps = ti.cast(prm[7], float), ti.cast(prm[8], float)
+                Wd = ti.cast(prm[9], ti.i32)
+                Hd = ti.cast(prm[10], ti.i32)
                 sq = ti.sqrt(Q[k])
-                P = S.sim3_act(Tv, S.load(Xf, k, 3))
-                if ti.static(not calib):
-                    J, p, d = KT.ray_dist_rows(P)
-                    pk, dk = KT.unit_and_norm(S.load(Xk, k, 3))
-                    for r in ti.static(range(4)):
-                        e = dk - d
+                P = S.sim3_act(Tv, _load3(Xf, k))
+                zk = Xk[3 * k + 2]
+                uv, J = KT.calib_rows(P, fx, fy, cx, cy)
+                ok = (
+                    zk > eps
+                    and P[2] > eps
+                    and uv[0] > border
+                    and uv[0] < Wd - 1 - border
+                    and uv[1] > border
+                    and uv[1] < Hd - 1 - border
+                )
+                if ok:
+                    meas = ti.Vector([ti.cast(k % Wd, float), ti.cast(k // Wd, float), ti.log(zk)])
+                    for r in ti.static(range(3)):
+                        e = meas[r] - uv[r]
                         si = sq * s2_inv
-                        if ti.static(r < 3):
-                            e = pk[r] - p[r]
+                        if ti.static(r < 2):
                             si = sq * s1_inv
-                        zero = ti.static(KT.ZERO_RAY if r < 3 else KT.ZERO_DIST)
-                        KT.accumulate(acc, _row(J, r), e, si * si * KT.huber(si * e, hk), zero)
-                else:
-                    fx, fy = ti.cast(prm[3], float), ti.cast(prm[4], float)
-                    cx, cy = ti.cast(prm[5], float), ti.cast(prm[6], float)
-                    border, eps = ti.cast(prm[7], float), ti.cast(prm[8], float)
-                    Wd = ti.cast(prm[9], ti.i32)
-                    Hd = ti.cast(prm[10], ti.i32)
-                    zk = Xk[k, 2]
-                    uv, J = KT.calib_rows(P, fx, fy, cx, cy)
-                    ok = (
-                        zk > eps
-                        and P[2] > eps
-                        and uv[0] > border
-                        and uv[0] < Wd - 1 - border
-                        and uv[1] > border
-                        and uv[1] < Hd - 1 - border
-                    )
-                    if ok:
-                        meas = ti.Vector(
-                            [ti.cast(k % Wd, float), ti.cast(k // Wd, float), ti.log(zk)]
-                        )
-                        for r in ti.static(range(3)):
-                            e = meas[r] - uv[r]
-                            si = sq * s2_inv
-                            if ti.static(r < 2):
-                                si = sq * s1_inv
-                            w = si * si * KT.huber(si * e, hk)
-                            KT.accumulate(acc, _row(J, r), e, w, KT.ZERO_CALIB[r])
+                        w = si * si * KT.huber(si * e, hk)
+                        KT.accumulate(acc, _row(J, r), e, w, KT.ZERO_CALIB[r])
         KT.store_acc(out, c, acc)
 
 
@@ -162,7 +167,8 @@ def _linearize_prepared(
     out = np.zeros((n_chunks, KT.NACC))
     if n:
         T_ = np.ascontiguousarray(np.asarray(T, np.float64).reshape(1, 8), dtype=X_f.dtype)
-        _linearize_k(T_, X_f, X_k, Q, valid, _params(cfg, K, shape), out, K is not None)
+        prm = _params(cfg, K, shape)
+        _linearize_k(T_, X_f.reshape(-1), X_k.reshape(-1), Q, valid, prm, out, K is not None)
     return _unpack(out.sum(axis=0))
 
 

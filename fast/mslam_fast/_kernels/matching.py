@@ -140,18 +140,36 @@ def lm_pixel(RG: ti.template(), b, t, u_init, v_init, H, W, max_iter, lam0, thre
 
 
 @ti.func
+def pad_descriptors(D: ti.template(), Dp: ti.template(), H, W, pad):
+    """Copy the rows of ``D (B·H·W, F)`` (any float type) into ``Dp (B·Hp·Wp, Fp)`` (runtime
+    float type), the rows of an image with a border of ``pad`` pixels (Hp = H + 2 pad,
+    Wp = W + 2 pad); ``Dp`` arrives zeroed, so its border and its columns F..Fp stay 0."""
+    Hp, Wp = H + 2 * pad, W + 2 * pad
+    for r in range(D.shape[0]):
+        b = r // (H * W)
+        v = (r % (H * W)) // W
+        u = r % W
+        rp = (b * Hp + v + pad) * Wp + u + pad
+        for k in range(D.shape[1]):
+            Dp[rp, k] = ti.cast(D[r, k], float)
+
+
+@ti.func
 def refine_pixel(
     D11: ti.template(), D21: ti.template(), b, row2, u_start, v_start, H, W, radius, dmax
 ):
     """Coarse-to-fine descriptor search of ``mslam_ref.matching.refine_matches``; returns (u, v).
 
-    ``D11`` is (B·H·W, Fp) and ``D21`` (B·N, Fp): rows of zero-padded descriptors; the target's
-    row is ``row2`` and image 1 is batch element ``b``. The dot
-    product is a runtime-length loop over Fp, which LLVM's loop vectoriser turns into AVX code
-    (an unrolled ``ti.static`` loop stays scalar); the host pads F to a multiple of 16 so that
-    no scalar remainder runs. ``best`` starts at 0.0 (``REFINE_BEST_INIT``).
+    ``D11`` holds the rows ``(B·(H + 2P)·(W + 2P), Fp)`` of image-1 descriptors with a border of P = radius·dmax zero descriptors and
+    ``D21`` is ``(B·N, Fp)``; the target's row is ``row2`` and image 1 is batch element ``b``.
+    A candidate outside the image reads a zero descriptor and scores exactly 0, which never
+    beats ``best >= 0`` under the strict ``>``: the reference's inside-image test, without a
+    branch. The dot product is a runtime-length loop over Fp (zero-padded F), which LLVM's
+    loop vectoriser turns into SIMD code. ``best`` starts at 0.0 (``REFINE_BEST_INIT``).
     """
     Fp = D11.shape[1]
+    P = radius * dmax
+    Hp, Wp = H + 2 * P, W + 2 * P
     best = D21[row2, 0] * 0.0
     u0, v0 = u_start, v_start
     ub, vb = u_start, v_start
@@ -160,16 +178,14 @@ def refine_pixel(
         rd = radius * d
         for i in range(2 * radius + 1):  # u offset, outer (upstream loop order)
             u = u0 - rd + i * d
-            if 0 <= u < W:
-                for j in range(2 * radius + 1):
-                    v = v0 - rd + j * d
-                    if 0 <= v < H:
-                        row1 = (b * H + v) * W + u
-                        s = D21[row2, 0] * 0.0
-                        for k in range(Fp):
-                            s += D21[row2, k] * D11[row1, k]
-                        if s > best:
-                            best = s
-                            ub, vb = u, v
+            for j in range(2 * radius + 1):
+                v = v0 - rd + j * d
+                row1 = (b * Hp + v + P) * Wp + u + P
+                s = D21[row2, 0] * 0.0
+                for k in range(Fp):
+                    s += D21[row2, k] * D11[row1, k]
+                if s > best:
+                    best = s
+                    ub, vb = u, v
         u0, v0 = ub, vb
     return ub, vb

@@ -19,10 +19,7 @@ HUBER_K = 1.345
 def huber(x, k):
     """IRLS Huber weight: 1 if |x| < k else k/|x|."""
     a = ti.abs(x)
-    w = 1.0
-    if a >= k:
-        w = k / a
-    return w
+    return ti.select(a >= k, k / a, 1.0)
 
 
 @ti.func
@@ -66,11 +63,7 @@ def ray_dist_rows(P):
     ray a: [(delta_ab - psi_a psi_b)/d | row a of -[psi]x | 0];  distance: [psi^T | 0 | d].
     The origin gives zero rows.
     """
-    d = P.norm()
-    inv_d = 0.0
-    if d > 0.0:
-        inv_d = 1.0 / d
-    p = P * inv_d
+    p, d, inv_d = unit_norm_inv(P)
     J = ti.Matrix(
         [
             [
@@ -107,11 +100,17 @@ def ray_dist_rows(P):
 
 
 @ti.func
+def unit_norm_inv(X):
+    """psi(X), |X| and 1/|X| (0 at the origin)."""
+    d = X.norm()
+    inv_d = ti.select(d > 0.0, 1.0 / d, 0.0)
+    return X * inv_d, d, inv_d
+
+
+@ti.func
 def unit_and_norm(X):
     d = X.norm()
-    inv_d = 0.0
-    if d > 0.0:
-        inv_d = 1.0 / d
+    inv_d = ti.select(d > 0.0, 1.0 / d, 0.0)
     return X * inv_d, d
 
 
@@ -138,3 +137,59 @@ def calib_rows(P, fx, fy, cx, cy):
     else:
         J = ti.Matrix.zero(float, 3, 7)
     return ti.Vector([fx * xb + cx, fy * yb + cy, logz]), J
+
+
+#: Non-zero entries of B = −[p]x; the identity; the two other axes of each axis.
+B_NONZERO = ((False, True, True), (True, False, True), (True, True, False))
+EYE3 = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
+OTHERS = ((1, 2), (0, 2), (0, 1))
+
+
+@ti.func
+def accumulate_rays(acc: ti.template(), p, inv_d, e, si, hk):
+    """acc += the three ray rows of ``ray_dist_rows`` with errors ``e`` (a 3-vector, the
+    caller's sign), sqrt information ``si`` and per-row Huber weights w_a, in closed form (f64).
+
+    With A = (I − p pᵀ)/d, B = −[p]x (rows a of the ray Jacobian: [A_a | B_a | 0]), W = diag(w)
+    and m = Σ_r w_r p_r², c = Bᵀ W p, ε = W e:
+        (A W A)_ij = (w_i δ_ij − (w_i + w_j − m) p_i p_j)/d²,   (A W B)_ij = (w_i B_ij − p_i c_j)/d,
+        (Bᵀ W B)_ij = Σ_r w_r B_ri B_rj,   g = [(ε − p (pᵀε))/d | Bᵀε = p × ε | 0],
+    cost Σ_a w_a e_a² / 2: one row's worth of accumulation instead of three.
+    """
+    w = ti.Vector([0.0, 0.0, 0.0], dt=ti.f64)
+    for a in ti.static(range(3)):
+        w[a] = ti.cast(si * si * huber(si * e[a], hk), ti.f64)
+    pd = ti.cast(p, ti.f64)
+    ed = ti.cast(e, ti.f64)
+    idd = ti.cast(inv_d, ti.f64)
+    B = ti.Matrix([[0.0, pd[2], -pd[1]], [-pd[2], 0.0, pd[0]], [pd[1], -pd[0], 0.0]], dt=ti.f64)
+    m = w[0] * pd[0] * pd[0] + w[1] * pd[1] * pd[1] + w[2] * pd[2] * pd[2]
+    c = ti.Vector([0.0, 0.0, 0.0], dt=ti.f64)
+    for j in ti.static(range(3)):
+        for r in ti.static(range(3)):
+            if ti.static(B_NONZERO[r][j]):
+                c[j] += w[r] * pd[r] * B[r, j]
+    idd2 = idd * idd
+    for t in ti.static(range(28)):
+        a, b = ti.static(TRI[t][0], TRI[t][1])
+        if ti.static(b < 3):
+            acc[t] += idd2 * (EYE3[a][b] * w[a] - (w[a] + w[b] - m) * pd[a] * pd[b])
+        elif ti.static(a < 3 and b < 6):
+            if ti.static(B_NONZERO[a][b - 3]):
+                acc[t] += idd * (w[a] * B[a, b - 3] - pd[a] * c[b - 3])
+            else:
+                acc[t] += -idd * pd[a] * c[b - 3]
+        elif ti.static(b < 6):
+            v = 0.0 * idd
+            for r in ti.static(range(3)):
+                if ti.static(B_NONZERO[r][a - 3] and B_NONZERO[r][b - 3]):
+                    v += w[r] * B[r, a - 3] * B[r, b - 3]
+            acc[t] += v
+    eps = w * ed
+    pe = pd[0] * eps[0] + pd[1] * eps[1] + pd[2] * eps[2]
+    for a in ti.static(range(3)):
+        acc[28 + a] += idd * (eps[a] - pd[a] * pe)
+    pxe = pd.cross(eps)
+    for a in ti.static(range(3)):
+        acc[31 + a] += pxe[a]
+    acc[35] += 0.5 * (eps[0] * ed[0] + eps[1] * ed[1] + eps[2] * ed[2])

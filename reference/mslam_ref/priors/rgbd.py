@@ -57,6 +57,7 @@ class RGBDPriorConfig:
         ransac_px: RANSAC reprojection threshold in frame pixels.
         ransac_iters: RANSAC iterations.
         min_inliers: fewer inliers means "pose failed".
+        max_translation: a PnP translation longer than this (m) is rejected as degenerate.
         fill_depth: depth (m) used when a frame has no valid depth at all.
         conf_max, conf_sigma: ``C = 1 + conf_max exp(-σ(z) / conf_sigma)`` on valid depth.
         consistency_tol: relative depth disagreement that marks a pixel of j inconsistent.
@@ -72,6 +73,7 @@ class RGBDPriorConfig:
     ransac_px: float = 1.5
     ransac_iters: int = 500
     min_inliers: int = 15
+    max_translation: float = 5.0
     fill_depth: float = 3.0
     conf_max: float = 20.0
     conf_sigma: float = 0.05
@@ -223,16 +225,49 @@ class RGBDPrior:
         )
         obj = (rays * z[:, None])[ok]
         img = uv_i[ti][ok]
-        found, rvec, tvec, inl = cv2.solvePnPRansac(
-            obj, img, Ki, None, iterationsCount=cfg.ransac_iters, reprojectionError=cfg.ransac_px,
-            confidence=0.999, flags=cv2.SOLVEPNP_EPNP,
-        )  # fmt: skip
+        for flags in (cv2.SOLVEPNP_EPNP, cv2.SOLVEPNP_ITERATIVE):
+            T_ij, n = self._pnp(obj, img, Ki, flags)
+            if n >= cfg.min_inliers:
+                return T_ij, n
+        return sim3.identity(), n
+
+    def _pnp(self, obj: FloatArray, img: FloatArray, K: FloatArray, flags: int):
+        """RANSAC PnP with ``flags`` + LM refinement, then a sanity check of the result.
+
+        EPnP inside RANSAC occasionally returns a degenerate hypothesis (translations of
+        ~1e13 m whose "inliers" are points projected to infinity); such a pose, or one that
+        puts inliers behind camera i, moves them by more than ``max_translation``, or whose
+        refined inliers do not reproject within ``ransac_px``, is reported as a failure
+        (0 inliers) so that the caller can fall back to another solver.
+        """
+        cfg = self.cfg
+        try:
+            found, rvec, tvec, inl = cv2.solvePnPRansac(
+                obj, img, K, None, iterationsCount=cfg.ransac_iters,
+                reprojectionError=cfg.ransac_px, confidence=0.999, flags=flags,
+            )  # fmt: skip
+        except cv2.error:
+            return sim3.identity(), 0
         if not found or inl is None or len(inl) < cfg.min_inliers:
-            return sim3.identity(), 0 if inl is None else len(inl)
+            return sim3.identity(), 0
         inl = inl.ravel()
-        rvec, tvec = cv2.solvePnPRefineLM(obj[inl], img[inl], Ki, None, rvec, tvec)
-        q = so3.exp(rvec.ravel())
-        return np.concatenate([tvec.ravel(), q, [1.0]]), len(inl)
+        if not (np.all(np.isfinite(rvec)) and np.all(np.isfinite(tvec))):
+            return sim3.identity(), 0
+        rvec, tvec = cv2.solvePnPRefineLM(obj[inl], img[inl], K, None, rvec, tvec)
+        R, t = so3.to_matrix(so3.exp(rvec.ravel())), tvec.ravel()
+        if not (np.all(np.isfinite(R)) and np.all(np.isfinite(t))):
+            return sim3.identity(), 0
+        if np.linalg.norm(t) > cfg.max_translation:
+            return sim3.identity(), 0
+        Xi = obj[inl] @ R.T + t
+        if np.any(Xi[:, 2] <= 1e-3):
+            return sim3.identity(), 0
+        uv = Xi[:, :2] / Xi[:, 2:] * K[[0, 1], [0, 1]] + K[:2, 2]
+        err = np.linalg.norm(uv - img[inl], axis=1)
+        n = int(np.sum(err <= cfg.ransac_px))
+        if n < cfg.min_inliers:
+            return sim3.identity(), 0
+        return np.concatenate([t, so3.exp(rvec.ravel()), [1.0]]), n
 
     # -- protocol ----------------------------------------------------------------------------
     def _view(self, frame: Frame) -> tuple[FloatArray, FloatArray, np.ndarray]:

@@ -80,12 +80,12 @@ def _path_length(P: np.ndarray) -> float:
 def evaluate_run(system: Any, sequence: Any) -> dict[str, Any]:
     """ATE (Sim(3)) of all frames and of the keyframes against ground truth, path lengths.
 
-    The path length is the ground truth's over the frames the run processed (or the
-    estimate's when there is no ground truth).
+    ``path_length`` is the ground truth's, summed over steps between consecutive frames that
+    both have a pose (or the estimate's when there is no ground truth).
     """
     from mslam_ref import evaluate
 
-    _idx, ts, T = system.frame_poses()
+    idx, ts, T = system.frame_poses()
     out: dict[str, Any] = {"path_length_est": _path_length(T[:, :3]) if len(T) else 0.0}
     gt = getattr(sequence, "T_WC", None)
     if gt is None or len(T) < 3:
@@ -93,10 +93,12 @@ def evaluate_run(system: Any, sequence: Any) -> dict[str, Any]:
         return out
     gt = np.asarray(gt)
     gt_ts = np.asarray(sequence.timestamps, dtype=np.float64)
-    processed = [p.index for p in system.poses]
-    lo, hi = min(processed), max(processed)
-    sel = (np.arange(len(gt)) >= lo) & (np.arange(len(gt)) <= hi)
-    out["path_length"] = _path_length(gt[sel, :3])
+    # Ground-truth path over consecutive frames that both have a pose (a relocation jump
+    # between lost frames does not count as path).
+    has = np.zeros(len(gt), bool)
+    has[idx[idx < len(gt)]] = True
+    steps = np.linalg.norm(np.diff(gt[:, :3], axis=0), axis=1)
+    out["path_length"] = float(steps[has[:-1] & has[1:]].sum())
     res = evaluate.ate(ts, T, gt_ts, gt, align="sim3")
     out["ate"] = res.to_dict()
     out["ate_percent_of_path"] = 100.0 * res.rmse / max(out["path_length"], 1e-12)
@@ -208,7 +210,7 @@ def write_outputs(
     from mslam_ref import io as mio
 
     out_dir = Path(out_dir)
-    _idx, ts, T = system.frame_poses()
+    _, ts, T = system.frame_poses()
     _, kts, kT = system.keyframe_poses()
     xyz, rgb = reconstruction_points(system)
     ev = evaluate_run(system, sequence)
