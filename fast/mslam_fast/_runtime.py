@@ -11,6 +11,8 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import io
+import math
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -114,3 +116,21 @@ def flat(x: npt.NDArray[Any], batch: tuple[int, ...], k: int | tuple[int, ...]) 
     kk = (k,) if isinstance(k, int) else tuple(k)
     full = np.broadcast_to(x, (*batch, *kk))
     return np.ascontiguousarray(full.reshape(-1, *kk))
+
+
+def run_batch(
+    kernel: Callable[..., Any],
+    inputs: list[tuple[npt.NDArray[Any], int]],
+    out_tail: tuple[int, ...],
+) -> npt.NDArray[Any]:
+    """Run an element-wise batch kernel over broadcast inputs.
+
+    Broadcasts ``inputs`` (prepared array, element size) over their leading batch axes, flattens
+    them to ``(B, k)``, allocates the ``(*batch, *out_tail)`` output in the runtime dtype and calls
+    ``kernel(*inputs, out)`` unless the batch is empty.
+    """
+    batch = np.broadcast_shapes(*(a.shape[:-1] for a, _ in inputs))
+    out = np.empty((*batch, *out_tail), dtype=ensure_init().dtype)
+    if math.prod(batch) > 0:
+        kernel(*(flat(a, batch, k) for a, k in inputs), out.reshape(-1, *out_tail))
+    return out

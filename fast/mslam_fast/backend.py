@@ -24,6 +24,7 @@ from mslam_fast._kernels import tracking as KT
 from mslam_fast._runtime import ensure_init
 from mslam_ref import backend as _ref
 from mslam_ref import calib as _calib
+from mslam_ref import sim3 as _sim3
 from mslam_ref.backend import (
     BackendConfig,
     BackendInfo,
@@ -54,6 +55,12 @@ def _row(J, r):
     return ti.Vector([J[r, b] for b in ti.static(range(7))])
 
 
+@ti.func
+def _load3(A: ti.template(), r):
+    """Point r of a flat (3·rows,) array (compile-time stride 3: see mslam_fast.tracking)."""
+    return ti.Vector([A[3 * r], A[3 * r + 1], A[3 * r + 2]])
+
+
 @ti.kernel
 def _linearize_k(
     T: nd,
@@ -68,14 +75,13 @@ def _linearize_k(
     out: nd,
     calib: ti.template(),
 ):
-    n = X.shape[1]
+    n = C.shape[1]
     n_chunks = out.shape[1]
     for d, c in ti.ndrange(out.shape[0], n_chunks):
         acc = ti.Vector.zero(ti.f64, KT.NACC)
         i = ii[d]
         j = jj[d]
-        Ti = S.load(T, i, 8)
-        Tij = S.sim3_mul(S.sim3_inv(Ti), S.load(T, j, 8))
+        Tij = S.sim3_mul(S.sim3_inv(S.load(T, i, 8)), S.load(T, j, 8))
         s1_inv = ti.cast(1.0 / prm[0], float)
         s2_inv = ti.cast(1.0 / prm[1], float)
         Q_conf, C_conf = ti.cast(prm[2], float), ti.cast(prm[3], float)
@@ -86,57 +92,52 @@ def _linearize_k(
         Hd = ti.cast(prm[11], ti.i32)
         for k in range(c * CHUNK, ti.min(c * CHUNK + CHUNK, n)):
             q = Q[d, k]
-            if valid[d, k] != 0 and q > Q_conf:
-                m = idx[d, k]
+            m = idx[d, k]
+            if ti.static(not calib):  # branch-free (vectorised): a rejected pixel has weight 0
+                # `&`, not `and` (short-circuit branches would keep the loop scalar)
+                ok = (valid[d, k] != 0) & (q > Q_conf) & (C[i, m] > C_conf) & (C[j, k] > C_conf)
+                zero3 = ti.Vector([0.0, 0.0, 0.0])
+                sq = ti.sqrt(ti.select(ok, q, 0.0))
+                P = S.sim3_act(Tij, ti.select(ok, _load3(X, j * n + k), zero3))
+                p, dd, inv_d = KT.unit_norm_inv(P)
+                pi, di = KT.unit_and_norm(ti.select(ok, _load3(X, i * n + m), zero3))
+                KT.accumulate_rays(acc, p, inv_d, p - pi, sq * s1_inv, KT.HUBER_K)
+                e, si = dd - di, sq * s2_inv
+                Jd = ti.Vector([p[0], p[1], p[2], 0.0, 0.0, 0.0, dd])  # distance row
+                KT.accumulate(acc, Jd, e, si * si * KT.huber(si * e, KT.HUBER_K), KT.ZERO_DIST)
+            elif valid[d, k] != 0 and q > Q_conf:  # log() does not vectorise: branches
                 if C[i, m] > C_conf and C[j, k] > C_conf:
                     sq = ti.sqrt(q)
-                    Xj = ti.Vector([X[j, k, 0], X[j, k, 1], X[j, k, 2]])
-                    if ti.static(calib):  # constrain X_j to the ray of pixel k
-                        zj = Xj[2]
-                        Xj = ti.Vector(
-                            [
-                                zj * (ti.cast(k % Wd, float) - cx) / fx,
-                                zj * (ti.cast(k // Wd, float) - cy) / fy,
-                                zj,
-                            ]
-                        )
+                    zj = X[3 * (j * n + k) + 2]
+                    Xj = ti.Vector(  # constrain X_j to the ray of pixel k
+                        [
+                            zj * (ti.cast(k % Wd, float) - cx) / fx,
+                            zj * (ti.cast(k // Wd, float) - cy) / fy,
+                            zj,
+                        ]
+                    )
                     P = S.sim3_act(Tij, Xj)
-                    if ti.static(not calib):
-                        J, p, dd = KT.ray_dist_rows(P)
-                        pi, di = KT.unit_and_norm(ti.Vector([X[i, m, 0], X[i, m, 1], X[i, m, 2]]))
-                        for r in ti.static(range(4)):
-                            e = dd - di
-                            si = sq * s2_inv
-                            if ti.static(r < 3):
-                                e = p[r] - pi[r]
-                                si = sq * s1_inv
-                            Jj = S.sim3_adj_inv_apply(Ti, _row(J, r))
-                            KT.accumulate(
-                                acc, Jj, e, si * si * KT.huber(si * e, KT.HUBER_K), KT.DENSE
-                            )
-                    else:
-                        zi = X[i, m, 2]
-                        uv, J = KT.calib_rows(P, fx, fy, cx, cy)
-                        ok = (
-                            zi > eps
-                            and P[2] > eps
-                            and uv[0] > border
-                            and uv[0] < Wd - 1 - border
-                            and uv[1] > border
-                            and uv[1] < Hd - 1 - border
+                    zi = X[3 * (i * n + m) + 2]
+                    uv, J = KT.calib_rows(P, fx, fy, cx, cy)
+                    ok = (
+                        zi > eps
+                        and P[2] > eps
+                        and uv[0] > border
+                        and uv[0] < Wd - 1 - border
+                        and uv[1] > border
+                        and uv[1] < Hd - 1 - border
+                    )
+                    if ok:
+                        tgt = ti.Vector(
+                            [ti.cast(m % Wd, float), ti.cast(m // Wd, float), ti.log(zi)]
                         )
-                        if ok:
-                            tgt = ti.Vector(
-                                [ti.cast(m % Wd, float), ti.cast(m // Wd, float), ti.log(zi)]
-                            )
-                            for r in ti.static(range(3)):
-                                e = uv[r] - tgt[r]
-                                si = sq * s2_inv
-                                if ti.static(r < 2):
-                                    si = sq * s1_inv
-                                Jj = S.sim3_adj_inv_apply(Ti, _row(J, r))
-                                w = si * si * KT.huber(si * e, KT.HUBER_K)
-                                KT.accumulate(acc, Jj, e, w, KT.DENSE)
+                        for r in ti.static(range(3)):
+                            e = uv[r] - tgt[r]
+                            si = sq * s2_inv
+                            if ti.static(r < 2):
+                                si = sq * s1_inv
+                            w = si * si * KT.huber(si * e, KT.HUBER_K)
+                            KT.accumulate(acc, _row(J, r), e, w, KT.ZERO_CALIB[r])
         for t in ti.static(range(18)):
             out[d, c, t] = acc[t]
         for t in ti.static(range(18, KT.NACC)):
@@ -181,7 +182,7 @@ def _linearize_with_cost(
     c = lambda a, s, t=dtype: np.ascontiguousarray(np.reshape(a, s), dtype=t)
     _linearize_k(
         c(T_WC, (n_kf, 8)),
-        c(X, (n_kf, N, 3)),
+        c(X, (-1,)),
         c(C, (n_kf, N)),
         c(ii, (D,), np.int32),
         c(jj, (D,), np.int32),
@@ -194,11 +195,15 @@ def _linearize_with_cost(
     )
     acc = out.sum(axis=1)
     rows, cols = zip(*KT.TRI, strict=True)
-    Hjj = np.zeros((D, 7, 7))
-    Hjj[:, rows, cols] = acc[:, :28]
-    Hjj[:, cols, rows] = acc[:, :28]
+    H_loc = np.zeros((D, 7, 7))
+    H_loc[:, rows, cols] = acc[:, :28]
+    H_loc[:, cols, rows] = acc[:, :28]
+    # J_j = J_loc M with M = Ad(T_WCi)^-1 (row r of M: e_r M), once per block, not per row
+    M = _sim3.adjoint_inv_apply(np.asarray(T_WC, np.float64)[ii][:, None, :], np.eye(7)[None])
+    Hjj = np.einsum("dra,drs,dsb->dab", M, H_loc, M)
+    g_j = np.einsum("dra,dr->da", M, acc[:, 28:35])
     Hs[:, 0], Hs[:, 1], Hs[:, 2], Hs[:, 3] = Hjj, -Hjj, -Hjj, Hjj
-    gs[:, 0], gs[:, 1] = -acc[:, 28:35], acc[:, 28:35]
+    gs[:, 0], gs[:, 1] = -g_j, g_j
     return Hs, gs, float(acc[:, 35].sum())
 
 

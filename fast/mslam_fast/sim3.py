@@ -14,7 +14,7 @@ import numpy as np
 import taichi as ti
 
 from mslam_fast._kernels import sim3 as K
-from mslam_fast._runtime import ensure_init, flat, prepare
+from mslam_fast._runtime import ensure_init, flat, prepare, run_batch
 from mslam_ref import sim3 as _ref
 from mslam_ref.conventions import as_float_array
 
@@ -133,16 +133,6 @@ def _T(T: Any, name: str = "T") -> Array:
     return np.ascontiguousarray(arr, dtype=ensure_init().dtype)
 
 
-def _run(kernel: Any, inputs: list[tuple[Array, int]], out_tail: tuple[int, ...]) -> Array:
-    """Broadcast ``inputs`` (array, element size) over their batch axes, run ``kernel``."""
-    batch = np.broadcast_shapes(*(a.shape[:-1] for a, _ in inputs))
-    dtype = ensure_init().dtype
-    out = np.empty((*batch, *out_tail), dtype=dtype)
-    if math.prod(batch) > 0:
-        kernel(*(flat(a, batch, k) for a, k in inputs), out.reshape(-1, *out_tail))
-    return out
-
-
 def identity(batch_shape: tuple[int, ...] = ()) -> Array:
     """Taichi twin of ``mslam_ref.sim3.identity`` (host-only: no kernel needed)."""
     return _ref.identity(batch_shape).astype(ensure_init().dtype)
@@ -150,27 +140,27 @@ def identity(batch_shape: tuple[int, ...] = ()) -> Array:
 
 def exp(xi: Any) -> Array:
     """Taichi twin of ``mslam_ref.sim3.exp``."""
-    return _run(_exp_k, [(prepare(xi, "xi", 7), 7)], (8,))
+    return run_batch(_exp_k, [(prepare(xi, "xi", 7), 7)], (8,))
 
 
 def log(T: Any) -> Array:
     """Taichi twin of ``mslam_ref.sim3.log`` (3x3 inverse of W per element)."""
-    return _run(_log_k, [(_T(T), 8)], (7,))
+    return run_batch(_log_k, [(_T(T), 8)], (7,))
 
 
 def mul(A: Any, B: Any) -> Array:
     """Taichi twin of ``mslam_ref.sim3.mul``."""
-    return _run(_mul_k, [(_T(A, "A"), 8), (_T(B, "B"), 8)], (8,))
+    return run_batch(_mul_k, [(_T(A, "A"), 8), (_T(B, "B"), 8)], (8,))
 
 
 def inv(T: Any) -> Array:
     """Taichi twin of ``mslam_ref.sim3.inv``."""
-    return _run(_inv_k, [(_T(T), 8)], (8,))
+    return run_batch(_inv_k, [(_T(T), 8)], (8,))
 
 
 def act(T: Any, X: Any) -> Array:
     """Taichi twin of ``mslam_ref.sim3.act``."""
-    return _run(_act_k, [(_T(T), 8), (prepare(X, "X", 3), 3)], (3,))
+    return run_batch(_act_k, [(_T(T), 8), (prepare(X, "X", 3), 3)], (3,))
 
 
 def act_and_jacobian(T: Any, X: Any) -> tuple[Array, Array]:
@@ -187,22 +177,22 @@ def act_and_jacobian(T: Any, X: Any) -> tuple[Array, Array]:
 
 def adjoint(T: Any) -> Array:
     """Taichi twin of ``mslam_ref.sim3.adjoint``."""
-    return _run(_adjoint_k, [(_T(T), 8)], (7, 7))
+    return run_batch(_adjoint_k, [(_T(T), 8)], (7, 7))
 
 
 def adjoint_inv_apply(T: Any, J: Any) -> Array:
     """Taichi twin of ``mslam_ref.sim3.adjoint_inv_apply``."""
-    return _run(_adj_inv_k, [(_T(T), 8), (prepare(J, "J", 7), 7)], (7,))
+    return run_batch(_adj_inv_k, [(_T(T), 8), (prepare(J, "J", 7), 7)], (7,))
 
 
 def retract(T: Any, xi: Any) -> Array:
     """Taichi twin of ``mslam_ref.sim3.retract``."""
-    return _run(_retract_k, [(_T(T), 8), (prepare(xi, "xi", 7), 7)], (8,))
+    return run_batch(_retract_k, [(_T(T), 8), (prepare(xi, "xi", 7), 7)], (8,))
 
 
 def to_matrix(T: Any) -> Array:
     """Taichi twin of ``mslam_ref.sim3.to_matrix``."""
-    return _run(_to_matrix_k, [(_T(T), 8)], (4, 4))
+    return run_batch(_to_matrix_k, [(_T(T), 8)], (4, 4))
 
 
 def from_matrix(M: Any) -> Array:

@@ -9,14 +9,13 @@ is reached from the host through one small batch kernel below so that it has its
 ``from_matrix`` runs on the host (Shepperd's branch choice per element is not worth a kernel).
 """
 
-import math
 from typing import Any
 
 import numpy as np
 import taichi as ti
 
 from mslam_fast._kernels import sim3 as K
-from mslam_fast._runtime import ensure_init, flat, prepare
+from mslam_fast._runtime import ensure_init, prepare, run_batch
 from mslam_ref import so3 as _ref
 
 __all__ = [
@@ -89,15 +88,6 @@ def _hat_k(v: nd, out: nd):
 # --- host wrappers -------------------------------------------------------------------------
 
 
-def _run(kernel: Any, inputs: list[tuple[Array, int]], out_tail: tuple[int, ...]) -> Array:
-    """Broadcast ``inputs`` (array, element size) over their batch axes, run ``kernel``."""
-    batch = np.broadcast_shapes(*(a.shape[:-1] for a, _ in inputs))
-    out = np.empty((*batch, *out_tail), dtype=ensure_init().dtype)
-    if math.prod(batch) > 0:
-        kernel(*(flat(a, batch, k) for a, k in inputs), out.reshape(-1, *out_tail))
-    return out
-
-
 def _nonzero_quat(q: Any, name: str) -> Array:
     """Check like ``mslam_ref.so3.normalize`` (shape, finite, norm >= 1e-12); do not divide."""
     arr = prepare(q, name, 4)
@@ -108,42 +98,42 @@ def _nonzero_quat(q: Any, name: str) -> Array:
 
 def normalize(q: Any, name: str = "q") -> Array:
     """Taichi twin of ``mslam_ref.so3.normalize`` (the norm check runs on the host)."""
-    return _run(_normalize_k, [(_nonzero_quat(q, name), 4)], (4,))
+    return run_batch(_normalize_k, [(_nonzero_quat(q, name), 4)], (4,))
 
 
 def hat(v: Any) -> Array:
     """Taichi twin of ``mslam_ref.so3.hat``."""
-    return _run(_hat_k, [(prepare(v, "v", 3), 3)], (3, 3))
+    return run_batch(_hat_k, [(prepare(v, "v", 3), 3)], (3, 3))
 
 
 def exp(phi: Any) -> Array:
     """Taichi twin of ``mslam_ref.so3.exp``."""
-    return _run(_exp_k, [(prepare(phi, "phi", 3), 3)], (4,))
+    return run_batch(_exp_k, [(prepare(phi, "phi", 3), 3)], (4,))
 
 
 def log(q: Any) -> Array:
     """Taichi twin of ``mslam_ref.so3.log``; the quaternion is normalised inside the kernel."""
-    return _run(_log_k, [(_nonzero_quat(q, "q"), 4)], (3,))
+    return run_batch(_log_k, [(_nonzero_quat(q, "q"), 4)], (3,))
 
 
 def mul(q1: Any, q2: Any) -> Array:
     """Taichi twin of ``mslam_ref.so3.mul``."""
-    return _run(_mul_k, [(prepare(q1, "q1", 4), 4), (prepare(q2, "q2", 4), 4)], (4,))
+    return run_batch(_mul_k, [(prepare(q1, "q1", 4), 4), (prepare(q2, "q2", 4), 4)], (4,))
 
 
 def conj(q: Any) -> Array:
     """Taichi twin of ``mslam_ref.so3.conj``."""
-    return _run(_conj_k, [(prepare(q, "q", 4), 4)], (4,))
+    return run_batch(_conj_k, [(prepare(q, "q", 4), 4)], (4,))
 
 
 def act(q: Any, X: Any) -> Array:
     """Taichi twin of ``mslam_ref.so3.act``."""
-    return _run(_act_k, [(prepare(q, "q", 4), 4), (prepare(X, "X", 3), 3)], (3,))
+    return run_batch(_act_k, [(prepare(q, "q", 4), 4), (prepare(X, "X", 3), 3)], (3,))
 
 
 def to_matrix(q: Any) -> Array:
     """Taichi twin of ``mslam_ref.so3.to_matrix``."""
-    return _run(_to_matrix_k, [(prepare(q, "q", 4), 4)], (3, 3))
+    return run_batch(_to_matrix_k, [(prepare(q, "q", 4), 4)], (3, 3))
 
 
 def from_matrix(R: Any) -> Array:
