@@ -4,11 +4,14 @@ maths.
 ``linearize``: one fused kernel over (directed block, pixel chunk) pairs, so both cores work
 even for a single block: per pixel k of j it gathers the matched point of i, moves X_j with
 ``T_ij`` (computed once per chunk), forms the ray + distance (or, with K, pixel + log-depth
-on the ray-constrained points) residual, its local rows, ``J_j = J_loc Ad(T_WCi)^-1`` and the
-Huber weight, and accumulates ``W J_j J_j^T``, ``W e J_j`` and ``1/2 W e^2`` in float64 into
-its own row of a (D, n_chunks, 36) array (no atomics); the host sums the chunks. Since
-``J_i = -J_j`` exactly, ``H_ii = H_jj``, ``H_ij = H_ji = -H_jj`` and ``g_i = -g_j``.
-Per-pixel maths runs in the runtime float type, sums in float64.
+on the ray-constrained points) residual, its local rows ``J_loc`` and the Huber weight, and
+accumulates ``W J_loc^T J_loc``, ``W e J_loc`` and ``1/2 W e^2`` in float64 into its own row
+of a (D, n_chunks, 36) array (no atomics). The host sums the chunks and applies the chain
+rule once per block: with ``M = Ad(T_WCi)^-1`` (``J_j = J_loc M``), ``H_jj = M^T H_loc M``
+and ``g_j = M^T g_loc``. Since ``J_i = -J_j`` exactly, ``H_ii = H_jj``,
+``H_ij = H_ji = -H_jj`` and ``g_i = -g_j``. Per-pixel maths runs in the runtime float type,
+sums in float64. Both pixel loops are branch-free and vectorised over pixels as in
+``mslam_fast.tracking`` (ray rows in closed form, X as a flat ``(3·n_kf·N,)`` array).
 
 ``solve`` is the reference Gauss-Newton driver (``mslam_ref.backend._solve_with``: sparse
 assembly, Cholesky, retraction on the host) with this linearisation.
@@ -105,39 +108,39 @@ def _linearize_k(
                 e, si = dd - di, sq * s2_inv
                 Jd = ti.Vector([p[0], p[1], p[2], 0.0, 0.0, 0.0, dd])  # distance row
                 KT.accumulate(acc, Jd, e, si * si * KT.huber(si * e, KT.HUBER_K), KT.ZERO_DIST)
-            elif valid[d, k] != 0 and q > Q_conf:  # log() does not vectorise: branches
-                if C[i, m] > C_conf and C[j, k] > C_conf:
-                    sq = ti.sqrt(q)
-                    zj = X[3 * (j * n + k) + 2]
-                    Xj = ti.Vector(  # constrain X_j to the ray of pixel k
-                        [
-                            zj * (ti.cast(k % Wd, float) - cx) / fx,
-                            zj * (ti.cast(k // Wd, float) - cy) / fy,
-                            zj,
-                        ]
-                    )
-                    P = S.sim3_act(Tij, Xj)
-                    zi = X[3 * (i * n + m) + 2]
-                    uv, J = KT.calib_rows(P, fx, fy, cx, cy)
-                    ok = (
-                        zi > eps
-                        and P[2] > eps
-                        and uv[0] > border
-                        and uv[0] < Wd - 1 - border
-                        and uv[1] > border
-                        and uv[1] < Hd - 1 - border
-                    )
-                    if ok:
-                        tgt = ti.Vector(
-                            [ti.cast(m % Wd, float), ti.cast(m // Wd, float), ti.log(zi)]
-                        )
-                        for r in ti.static(range(3)):
-                            e = uv[r] - tgt[r]
-                            si = sq * s2_inv
-                            if ti.static(r < 2):
-                                si = sq * s1_inv
-                            w = si * si * KT.huber(si * e, KT.HUBER_K)
-                            KT.accumulate(acc, _row(J, r), e, w, KT.ZERO_CALIB[r])
+            else:  # branch-free as well: a rejected pixel gets a safe point and weight 0
+                ok_c = (valid[d, k] != 0) & (q > Q_conf) & (C[i, m] > C_conf) & (C[j, k] > C_conf)
+                zj = X[3 * (j * n + k) + 2]
+                Xj = ti.Vector(  # constrain X_j to the ray of pixel k
+                    [
+                        zj * (ti.cast(k % Wd, float) - cx) / fx,
+                        zj * (ti.cast(k // Wd, float) - cy) / fy,
+                        zj,
+                    ]
+                )
+                P = S.sim3_act(Tij, Xj)
+                zi = X[3 * (i * n + m) + 2]
+                ok_z = ok_c & (zi > eps) & (P[2] > eps)
+                safe = ti.Vector([0.0, 0.0, 1.0])
+                uv, _J = KT.calib_rows(ti.select(ok_z, P, safe), fx, fy, cx, cy)
+                ok = (
+                    ok_z
+                    & (uv[0] > border)
+                    & (uv[0] < Wd - 1 - border)
+                    & (uv[1] > border)
+                    & (uv[1] < Hd - 1 - border)
+                )
+                _uv, J = KT.calib_rows(ti.select(ok, P, safe), fx, fy, cx, cy)  # finite rows
+                sq = ti.sqrt(ti.select(ok, q, 0.0))
+                lzi = ti.cast(KT.log_pos(ti.select(ok_z, zi, 1.0)), float)
+                tgt = ti.Vector([ti.cast(m % Wd, float), ti.cast(m // Wd, float), lzi])
+                for r in ti.static(range(3)):
+                    e = ti.select(ok, uv[r] - tgt[r], 0.0)
+                    si = sq * s2_inv
+                    if ti.static(r < 2):
+                        si = sq * s1_inv
+                    w = si * si * KT.huber(si * e, KT.HUBER_K)
+                    KT.accumulate(acc, _row(J, r), e, w, KT.ZERO_CALIB[r])
         for t in ti.static(range(18)):
             out[d, c, t] = acc[t]
         for t in ti.static(range(18, KT.NACC)):

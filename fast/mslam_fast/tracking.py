@@ -8,6 +8,12 @@ Parallel axis: chunks of :data:`CHUNK` pixels, one thread per chunk; each chunk 
 own row of an (n_chunks, 36) float64 array (no atomics), the host sums the rows in chunk order.
 Residuals and Jacobians run in the runtime float type, every sum in float64.
 
+Ray + distance mode: the three ray rows are accumulated in closed form
+(``_kernels.tracking.accumulate_rays``) and the pixel loop is branch-free, with points passed
+as flat ``(3N,)`` arrays (a compile-time stride), so LLVM vectorises it over pixels (4 f64 /
+8 f32 lanes; the reduction order within a chunk is then LLVM's). Calibrated mode is
+branch-free too (rows one by one, ``log`` by ``_kernels.tracking.log_pos``).
+
 ``solve`` is the reference IRLS driver (``mslam_ref.tracking._solve_with``) with this
 ``linearize``; inputs are validated and converted once, not per iteration. The frontend
 helpers (masks, match quality, keyframe test) are host code shared with the reference.
@@ -84,33 +90,35 @@ def _linearize_k(T: nd, Xf: nd, Xk: nd, Q: nd, valid: nd, prm: nd, out: nd, cali
                 e, si = dk - d, sq * s2_inv
                 Jd = ti.Vector([p[0], p[1], p[2], 0.0, 0.0, 0.0, d])  # distance row
                 KT.accumulate(acc, Jd, e, si * si * KT.huber(si * e, hk), KT.ZERO_DIST)
-            elif valid[k] != 0:  # log() does not vectorise: branches are cheaper here
+            else:  # branch-free as well: a rejected pixel gets a safe point and weight 0
                 fx, fy = ti.cast(prm[3], float), ti.cast(prm[4], float)
                 cx, cy = ti.cast(prm[5], float), ti.cast(prm[6], float)
                 border, eps = ti.cast(prm[7], float), ti.cast(prm[8], float)
                 Wd = ti.cast(prm[9], ti.i32)
                 Hd = ti.cast(prm[10], ti.i32)
-                sq = ti.sqrt(Q[k])
                 P = S.sim3_act(Tv, _load3(Xf, k))
                 zk = Xk[3 * k + 2]
-                uv, J = KT.calib_rows(P, fx, fy, cx, cy)
+                ok_z = (valid[k] != 0) & (zk > eps) & (P[2] > eps)
+                safe = ti.Vector([0.0, 0.0, 1.0])
+                uv, _J = KT.calib_rows(ti.select(ok_z, P, safe), fx, fy, cx, cy)
                 ok = (
-                    zk > eps
-                    and P[2] > eps
-                    and uv[0] > border
-                    and uv[0] < Wd - 1 - border
-                    and uv[1] > border
-                    and uv[1] < Hd - 1 - border
+                    ok_z
+                    & (uv[0] > border)
+                    & (uv[0] < Wd - 1 - border)
+                    & (uv[1] > border)
+                    & (uv[1] < Hd - 1 - border)
                 )
-                if ok:
-                    meas = ti.Vector([ti.cast(k % Wd, float), ti.cast(k // Wd, float), ti.log(zk)])
-                    for r in ti.static(range(3)):
-                        e = meas[r] - uv[r]
-                        si = sq * s2_inv
-                        if ti.static(r < 2):
-                            si = sq * s1_inv
-                        w = si * si * KT.huber(si * e, hk)
-                        KT.accumulate(acc, _row(J, r), e, w, KT.ZERO_CALIB[r])
+                _uv, J = KT.calib_rows(ti.select(ok, P, safe), fx, fy, cx, cy)  # finite rows
+                sq = ti.sqrt(ti.select(ok, Q[k], 0.0))
+                lzk = ti.cast(KT.log_pos(ti.select(ok_z, zk, 1.0)), float)
+                meas = ti.Vector([ti.cast(k % Wd, float), ti.cast(k // Wd, float), lzk])
+                for r in ti.static(range(3)):
+                    e = ti.select(ok, meas[r] - uv[r], 0.0)
+                    si = sq * s2_inv
+                    if ti.static(r < 2):
+                        si = sq * s1_inv
+                    w = si * si * KT.huber(si * e, hk)
+                    KT.accumulate(acc, _row(J, r), e, w, KT.ZERO_CALIB[r])
         KT.store_acc(out, c, acc)
 
 

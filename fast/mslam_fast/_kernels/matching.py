@@ -8,7 +8,9 @@ expression is written in the order of the NumPy reference (dot products of 3-vec
 agree bit for bit up to LLVM's fused multiply-adds.
 
 Arrays (Taichi ndarrays): ray image ``RG (B, H, W, 9)`` = [R, gx, gy]; points ``(B, H, W, 3)``
-or ``(B, N, 3)``; descriptors as zero-padded rows ``D11 (B·H·W, Fp)``, ``D21 (B·N, Fp)``.
+or ``(B, N, 3)``; descriptors as zero-padded rows (F -> Fp, a multiple of 8): image 1 with a
+border of P = radius·dilation_max zero pixels, ``D11 (B·(H+2P)·(W+2P), Fp)`` (written by
+``pad_descriptors``), and ``D21 (B·N, Fp)``.
 """
 
 import taichi as ti
@@ -156,16 +158,29 @@ def pad_descriptors(D: ti.template(), Dp: ti.template(), H, W, pad):
 
 @ti.func
 def refine_pixel(
-    D11: ti.template(), D21: ti.template(), b, row2, u_start, v_start, H, W, radius, dmax
+    D11: ti.template(),
+    D21: ti.template(),
+    b,
+    row2,
+    u_start,
+    v_start,
+    H,
+    W,
+    radius: ti.template(),
+    dmax,
 ):
     """Coarse-to-fine descriptor search of ``mslam_ref.matching.refine_matches``; returns (u, v).
 
-    ``D11`` holds the rows ``(B·(H + 2P)·(W + 2P), Fp)`` of image-1 descriptors with a border of P = radius·dmax zero descriptors and
-    ``D21`` is ``(B·N, Fp)``; the target's row is ``row2`` and image 1 is batch element ``b``.
-    A candidate outside the image reads a zero descriptor and scores exactly 0, which never
-    beats ``best >= 0`` under the strict ``>``: the reference's inside-image test, without a
-    branch. The dot product is a runtime-length loop over Fp (zero-padded F), which LLVM's
-    loop vectoriser turns into SIMD code. ``best`` starts at 0.0 (``REFINE_BEST_INIT``).
+    ``D11`` holds the rows ``(B·(H + 2P)·(W + 2P), Fp)`` of image-1 descriptors with a border
+    of P = radius·dmax zero descriptors, ``D21`` is ``(B·N, Fp)``; the target's row is ``row2``
+    and image 1 is batch element ``b``. A candidate outside the image reads a zero descriptor
+    and scores exactly 0, which never beats ``best >= 0`` under the strict ``>``: the
+    reference's inside-image test, without a branch. ``radius`` is a compile-time constant:
+    the 2·radius + 1 candidates of one column (fixed u offset) are scored together in one
+    runtime-length loop over Fp (zero-padded F) with one accumulator each, which LLVM's loop
+    vectoriser turns into SIMD code (the target's descriptor is loaded once per column, the
+    loop overhead is shared); they are then compared in the reference's order (v offset
+    inner), branch-free. ``best`` starts at 0.0 (``REFINE_BEST_INIT``).
     """
     Fp = D11.shape[1]
     P = radius * dmax
@@ -178,14 +193,17 @@ def refine_pixel(
         rd = radius * d
         for i in range(2 * radius + 1):  # u offset, outer (upstream loop order)
             u = u0 - rd + i * d
-            for j in range(2 * radius + 1):
-                v = v0 - rd + j * d
-                row1 = (b * Hp + v + P) * Wp + u + P
-                s = D21[row2, 0] * 0.0
-                for k in range(Fp):
-                    s += D21[row2, k] * D11[row1, k]
-                if s > best:
-                    best = s
-                    ub, vb = u, v
+            row0 = (b * Hp + v0 - rd + P) * Wp + u + P  # candidate j = 0 of this column
+            step = d * Wp
+            s = ti.Vector([0.0] * (2 * radius + 1))
+            for k in range(Fp):
+                q = D21[row2, k]
+                for j in ti.static(range(2 * radius + 1)):
+                    s[j] += q * D11[row0 + j * step, k]
+            for j in ti.static(range(2 * radius + 1)):
+                better = s[j] > best  # branch-free update (an unpredictable branch otherwise)
+                best = ti.select(better, s[j], best)
+                ub = ti.select(better, u, ub)
+                vb = ti.select(better, v0 - rd + j * d, vb)
         u0, v0 = ub, vb
     return ub, vb
