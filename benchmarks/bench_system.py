@@ -6,8 +6,9 @@ Taichi kernels compiled beforehand by a warm-up run):
 1. built-in synthetic ``loop`` (the ``mslam run`` default), synthetic prior, ``fast`` and ``ref``
    kernels: ATE (Sim(3)) / path length (< 1%), loop-closure edges (>= 1), fast vs ref time (>= 5x);
 2. synthetic ``jump``: relocalisations (>= 1) and ATE / path (< 2%);
-3. 7-Scenes redkitchen frames 0-149 (../shared/data/seq), RGB-D prior, uncalibrated and
-   calibrated, beside OpenCV's frame-to-frame RGB-D odometry on the same frames.
+3. 7-Scenes redkitchen frames 0-149 (../shared/data/seq), RGB-D prior with the packaged
+   ``rgbd`` config, uncalibrated and calibrated, beside OpenCV's frame-to-frame RGB-D odometry
+   on the same frames.
 
 Usage: ``python benchmarks/bench_system.py [--quick] [--no-ref]`` (``--quick``: smaller runs,
 for a smoke test; the RESULTS.md section is only written by a full run).
@@ -121,7 +122,7 @@ def main() -> None:
         if args.quick:
             ov.append("dataset.subsample=3")
         for calib in (None, str(SEVEN_SCENES / "calib.yaml")):
-            r = one_run(str(SEVEN_SCENES), "fast", ov, calib=calib, baseline=True)
+            r = one_run(str(SEVEN_SCENES), "fast", ov, config="rgbd", calib=calib, baseline=True)
             real.append(r)
             print({k: v for k, v in r.items() if k != "stages"}, flush=True)
 
@@ -168,7 +169,10 @@ def main() -> None:
     stages = ", ".join(f"{k} {v:.1f} s" for k, v in sorted(fast_loop["stages"].items()))
     text += f"\n\nWhere the time goes (fast, default loop): {stages}."
     if real:
-        text += "\n\n7-Scenes redkitchen frames 0-149 (150 frames, RGB-D prior, 160x120):\n\n"
+        text += (
+            "\n\n7-Scenes redkitchen frames 0-149 (150 frames, RGB-D prior, 160x120, "
+            "`--config rgbd`):\n\n"
+        )
         header = [
             "mode",
             "frames with pose",

@@ -219,6 +219,62 @@ def test_rgbd_prior_relative_pose_7scenes(shared_data) -> None:
     assert (pred.C_ji > 2).mean() > 0.5
 
 
+def test_rgbd_prior_rejects_degenerate_pnp(monkeypatch) -> None:
+    """EPnP-in-RANSAC can return a pose 1e13 m away with "inliers"; it must not escape."""
+    import cv2
+
+    from mslam_ref.priors import rgbd
+    from mslam_ref.priors.rgbd import FAILED_Q, RGBDPrior
+
+    seq = make_sequence("forward", n_frames=40, width=160, height=120, seed=0)
+    prior = RGBDPrior(seq)
+    fi, fj = seq[10], seq[13]
+    T_gt = sim3.mul(sim3.inv(fi.T_WC), fj.T_WC)
+    real = cv2.solvePnPRansac
+    calls = []
+
+    def bad_epnp(obj, img, K, dist, **kw):
+        calls.append(kw["flags"])
+        found, rvec, tvec, inl = real(obj, img, K, dist, **kw)
+        if kw["flags"] == cv2.SOLVEPNP_EPNP:
+            return True, rvec, np.array([[1e13], [-3e12], [5e12]]), inl
+        return found, rvec, tvec, inl
+
+    monkeypatch.setattr(rgbd.cv2, "solvePnPRansac", bad_epnp)
+    T, n = prior.relative_pose(fi, fj)
+    assert calls == [cv2.SOLVEPNP_EPNP, cv2.SOLVEPNP_ITERATIVE]  # guarded, then the fallback
+    assert n >= 15 and _pose_error(T, T_gt)[1] < 0.03
+
+    def always_bad(obj, img, K, dist, **kw):
+        _found, rvec, tvec, inl = real(obj, img, K, dist, **kw)
+        return True, rvec, -np.abs(tvec) - 50.0, inl  # far away and behind the camera
+
+    monkeypatch.setattr(rgbd.cv2, "solvePnPRansac", always_bad)
+    T, n = prior.relative_pose(fi, fj)
+    assert n == 0 and np.array_equal(T, sim3.identity())
+    pred = prior.pair(fi, fj)  # a failed pose gives no trusted correspondence
+    check_prediction(pred)
+    assert np.all(pred.C_ji == 1.0) and np.all(pred.Q_ji == FAILED_Q)
+    assert np.all(np.sqrt(pred.Q_ii.max() * pred.Q_ji) < 1.5)  # below upstream's Q_conf
+
+
+def test_rgbd_prior_7scenes_degenerate_pairs(shared_data) -> None:
+    """Pairs where unguarded EPnP returned ~1e13 m: a sane pose or an honest failure."""
+    from mslam_ref.datasets import load_sequence
+    from mslam_ref.priors.rgbd import RGBDPrior
+
+    seq = load_sequence(shared_data / "seq" / "7scenes_redkitchen_f000000-000149", size=(160, 120))
+    prior = RGBDPrior(seq)
+    for i, j in [(98, 77), (99, 77), (98, 61)]:
+        T, n = prior.relative_pose(seq[i], seq[j])
+        assert np.all(np.isfinite(T))
+        if n >= prior.cfg.min_inliers:
+            rot, trans = _pose_error(T, sim3.mul(sim3.inv(seq[i].T_WC), seq[j].T_WC))
+            assert rot < 3.0 and trans < 0.06, (i, j, rot, trans)
+        else:
+            assert np.array_equal(T, sim3.identity())
+
+
 # -- MASt3R adapter -------------------------------------------------------------------------
 
 

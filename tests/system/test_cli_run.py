@@ -180,3 +180,32 @@ def test_config_inherit_and_overrides(tmp_path):
     bad.write_text("trackin:\n  Q_conf: 2\n")
     with pytest.raises(ValueError, match="unknown config key 'trackin'"):
         load_config(bad)
+
+
+@pytest.mark.parametrize("config,mode", [(None, "first"), ("base", "weighted_pointmap")])
+def test_rgbd_source_defaults_to_the_rgbd_config(tmp_path, fast64, config, mode):
+    """A source with depth runs the RGB-D prior, and without --config its packaged config."""
+    seq_dir = tmp_path / "seq"
+    assert (
+        main(
+            [
+                "synth",
+                "loop",
+                "--out",
+                str(seq_dir),
+                "--frames",
+                "4",
+                "--width",
+                "64",
+                "--height",
+                "48",
+            ]
+        )
+        == 0
+    )
+    out = tmp_path / "out"
+    args = ["run", str(seq_dir), "--out", str(out), "--kernels", "fast", "--quiet"]
+    assert main(args + (["--config", config] if config else [])) == 0
+    s = json.loads((out / "summary.json").read_text())
+    assert s["prior"] == "rgbd"
+    assert s["config"]["tracking"]["filtering_mode"] == mode

@@ -166,3 +166,17 @@ def test_ref_run_never_imports_taichi():
     with tempfile.TemporaryDirectory() as tmp:
         res = subprocess.run([sys.executable, "-c", code, tmp], capture_output=True, text=True)
     assert res.returncode == 0, res.stderr[-2000:]
+
+
+def test_rgbd_config_is_base_with_documented_changes():
+    """``configs/rgbd.yaml`` (docs/system.md): base.yaml except fusion mode, keyframe threshold
+    and the working resolution."""
+    base, rgbd = load_config(), load_config("rgbd")
+    assert rgbd.tracking().match_frac_thresh == 0.5
+    assert rgbd.fusion().filtering_mode == "first"
+    assert base.fusion().filtering_mode == "weighted_pointmap"
+    assert base.tracking().match_frac_thresh == pytest.approx(0.333)
+    assert rgbd.backend() == base.backend() and rgbd.matching() == base.matching()
+    assert rgbd.use_calib == base.use_calib
+    assert rgbd.dataset.long_side == 160 and base.dataset.long_side == 0
+    assert rgbd.dataset.subsample == base.dataset.subsample

@@ -43,7 +43,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--config",
         metavar="FILE",
-        help="YAML config (inherit: base.yaml); 'base' and 'calib' name the packaged files",
+        help="YAML config (inherit: base.yaml); 'base', 'calib' and 'rgbd' name the packaged "
+        "files (default: base, or rgbd with the RGB-D prior)",
     )
     p.add_argument(
         "--kernels",
@@ -105,6 +106,11 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--max-frames: must be >= 1, got {args.max_frames}")
     cfg = load_config(args.config, args.overrides)
     source = open_source(args.source, cfg, args.calib, args.prior, args.max_frames)
+    if args.config is None and source.prior_name == "rgbd":
+        # The RGB-D prior's packaged default (configs/rgbd.yaml, docs/system.md): its working
+        # resolution and two tracking keys differ from base.yaml, so open the source again.
+        cfg = load_config("rgbd", args.overrides)
+        source = open_source(args.source, cfg, args.calib, args.prior, args.max_frames)
     if args.calib is not None and not cfg.use_calib:
         from dataclasses import replace
 

@@ -6,24 +6,28 @@ pose that carries camera j into camera i, and this prior estimates it the classi
 the two images only (never from ground truth):
 
 1. SIFT (or ORB) keypoints in both grey images (upscaled to ``detect_min_width`` when the frame
-   is small), ratio-test matches j → i;
+   is small), ratio-test matches j → i, kept only where the keypoint of i is claimed once;
 2. 3-D points of j's keypoints from j's depth, with i's keypoints as 2-D observations;
-3. ``cv2.solvePnPRansac`` then ``cv2.solvePnPRefineLM`` on the inliers give ``T_ij``
-   (``X_i = R X_j + t``).
+3. ``cv2.solvePnPRansac`` (EPnP, then the iterative solver if EPnP's answer fails the sanity
+   check: finite, ``|t| <= max_translation``, inliers in front of camera i and reprojecting
+   within ``ransac_px`` after ``cv2.solvePnPRefineLM``) give ``T_ij`` (``X_i = R X_j + t``);
+4. point-to-plane ICP of j's depth points onto i's depth map refines it (``icp_*``).
 
 ``X_ji = T_ij · X_jj``. Confidences: valid depth ``C = 1 + conf_max · exp(-σ(z)/conf_sigma)``
 with the Kinect noise model ``σ(z) = 0.0012 + 0.0019 (z - 0.4)²`` (Nguyen et al. 2012); pixels
 without depth are filled from the nearest valid pixel (or ``fill_depth``) and get ``C = 1``.
 For ``C_ji``, pixels of j whose point disagrees with i's depth (occluded or wrong) or falls
 outside image i are pulled towards 1 (``inconsistent_factor``, ``covis_factor``); if the pose
-estimate failed (fewer than ``min_inliers``), ``C_ji = 1`` everywhere. Descriptors and Q come
-from image patches (``descriptors.patch_descriptors``), as in the synthetic prior.
+estimate failed (fewer than ``min_inliers``), ``C_ji = 1`` and ``Q_ji = FAILED_Q`` (0.01)
+everywhere, so that no correspondence of the pair passes upstream's ``Q_conf`` gate.
+Descriptors and Q come from image patches (``descriptors.patch_descriptors``), as in the
+synthetic prior.
 
 Frames of any resolution work: ``K`` is given at the sequence's native size and rescaled to the
 frame's size (``pointmap.scale_intrinsics``).
 
 Public names, in reading order:
-    RGBDPriorConfig, RGBDPrior, fill_depth
+    FAILED_Q, RGBDPriorConfig, RGBDPrior, fill_depth
 """
 
 from __future__ import annotations
@@ -42,7 +46,11 @@ from mslam_ref.pointmap import backproject, project, scale_intrinsics
 from mslam_ref.priors.base import PairPrediction
 from mslam_ref.priors.descriptors import DescriptorConfig, patch_descriptors
 
-__all__ = ["RGBDPrior", "RGBDPriorConfig", "fill_depth"]
+__all__ = ["FAILED_Q", "RGBDPrior", "RGBDPriorConfig", "fill_depth"]
+
+#: Descriptor confidence ``Q_ji`` of a pair whose pose estimate failed: ``sqrt(Q_ii · Q_ji)``
+#: stays far below upstream's ``Q_conf = 1.5`` for any ``Q_ii <= 1 + q_gain``.
+FAILED_Q = 0.01
 
 
 @dataclass(frozen=True)
@@ -58,6 +66,13 @@ class RGBDPriorConfig:
         ransac_iters: RANSAC iterations.
         min_inliers: fewer inliers means "pose failed".
         max_translation: a PnP translation longer than this (m) is rejected as degenerate.
+        icp_iters: point-to-plane ICP iterations refining the PnP pose on the depth maps
+            (0 = off).
+        icp_dist, icp_dist_final: association distance (m) of the first and last ICP iteration
+            (geometric schedule in between).
+        icp_min_frac: the refined pose is kept only if at least this share of j's valid pixels
+            is associated at the end.
+        icp_max_change: ... and if it moves the PnP pose by less than this (m, and rad).
         fill_depth: depth (m) used when a frame has no valid depth at all.
         conf_max, conf_sigma: ``C = 1 + conf_max exp(-σ(z) / conf_sigma)`` on valid depth.
         consistency_tol: relative depth disagreement that marks a pixel of j inconsistent.
@@ -74,6 +89,11 @@ class RGBDPriorConfig:
     ransac_iters: int = 500
     min_inliers: int = 15
     max_translation: float = 5.0
+    icp_iters: int = 12
+    icp_dist: float = 0.1
+    icp_dist_final: float = 0.02
+    icp_min_frac: float = 0.25
+    icp_max_change: float = 0.15
     fill_depth: float = 3.0
     conf_max: float = 20.0
     conf_sigma: float = 0.05
@@ -108,6 +128,21 @@ def fill_depth(depth: FloatArray, default: float = 3.0) -> tuple[FloatArray, np.
         return depth.copy(), valid
     _, (iy, ix) = ndimage.distance_transform_edt(~valid, return_indices=True)
     return depth[iy, ix], valid
+
+
+def _normals(X: FloatArray, valid: np.ndarray) -> tuple[FloatArray, np.ndarray]:
+    """Unit normals of an (H, W, 3) pointmap from central differences, and their validity."""
+    N = np.zeros_like(X)
+    ok = np.zeros(valid.shape, bool)
+    du = X[1:-1, 2:] - X[1:-1, :-2]
+    dv = X[2:, 1:-1] - X[:-2, 1:-1]
+    n = np.cross(du, dv)
+    norm = np.linalg.norm(n, axis=-1)
+    inner = valid[1:-1, 1:-1] & valid[1:-1, 2:] & valid[1:-1, :-2] & valid[2:, 1:-1]
+    inner &= valid[:-2, 1:-1] & (norm > 1e-12)
+    N[1:-1, 1:-1] = n / np.maximum(norm, 1e-12)[..., None]
+    ok[1:-1, 1:-1] = inner
+    return N, ok
 
 
 def _kinect_sigma(z: FloatArray) -> FloatArray:
@@ -208,6 +243,14 @@ class RGBDPrior:
         if len(pairs) < cfg.min_inliers:
             return sim3.identity(), 0
         qj, ti = np.array(pairs).T
+        # One-to-one: a keypoint of i claimed by several keypoints of j is ambiguous. On blurred
+        # frames one featureless keypoint can attract dozens of matches, which RANSAC then
+        # "explains" with a camera 1e13 m away (every point projects onto that pixel).
+        _, inv, counts = np.unique(ti, return_inverse=True, return_counts=True)
+        once = counts[inv] == 1
+        qj, ti = qj[once], ti[once]
+        if len(qj) < cfg.min_inliers:
+            return sim3.identity(), 0
         H, W = frame_j.shape
         uj = np.clip(np.round(uv_j[qj]), 0, [W - 1, H - 1]).astype(np.int64)
         z = frame_j.depth[uj[:, 1], uj[:, 0]]
@@ -228,8 +271,73 @@ class RGBDPrior:
         for flags in (cv2.SOLVEPNP_EPNP, cv2.SOLVEPNP_ITERATIVE):
             T_ij, n = self._pnp(obj, img, Ki, flags)
             if n >= cfg.min_inliers:
-                return T_ij, n
+                return self._refine_icp(frame_i, frame_j, T_ij), n
         return sim3.identity(), n
+
+    def _refine_icp(self, frame_i: Frame, frame_j: Frame, T_ij: FloatArray) -> FloatArray:
+        """Point-to-plane ICP of j's depth points onto i's depth map, from the PnP pose.
+
+        Projective association (the point of i at the pixel where ``T_ij X_j`` projects),
+        normals of i from central differences, Gauss-Newton on a left perturbation
+        ``exp([dt, dw]) T``, residual ``n · (P - Y)``, association distance shrinking from
+        ``icp_dist`` to ``icp_dist_final``. The PnP pose is kept if too few pixels end up
+        associated or the refinement moves it by more than ``icp_max_change``.
+        """
+        cfg = self.cfg
+        if cfg.icp_iters <= 0 or frame_i.depth is None:
+            return T_ij
+        Ki, Kj = self.K_for(frame_i), self.K_for(frame_j)
+        zj, zi = frame_j.depth, frame_i.depth
+        Xj = backproject(zj, Kj)[zj > 0]
+        if len(Xj) < 100:
+            return T_ij
+        Yi = backproject(zi, Ki)
+        Ni, ok_n = _normals(Yi, zi > 0)
+        H, W = zi.shape
+        R, t = so3.to_matrix(T_ij[3:7]), T_ij[:3].copy()
+        R0, t0 = R.copy(), t.copy()
+        n_it = cfg.icp_iters
+        frac = 0.0
+        for it in range(n_it):
+            a = it / max(n_it - 1, 1)
+            dist = cfg.icp_dist ** (1 - a) * cfg.icp_dist_final**a
+            P = Xj @ R.T + t
+            z = P[:, 2]
+            front = z > 1e-3
+            zs = np.where(front, z, 1.0)
+            u = np.round(Ki[0, 0] * P[:, 0] / zs + Ki[0, 2]).astype(np.int64)
+            v = np.round(Ki[1, 1] * P[:, 1] / zs + Ki[1, 2]).astype(np.int64)
+            ok = front & (u >= 0) & (u < W) & (v >= 0) & (v < H)
+            u, v = np.where(ok, u, 0), np.where(ok, v, 0)
+            ok &= ok_n[v, u]
+            Y, N = Yi[v, u], Ni[v, u]
+            ok &= np.linalg.norm(P - Y, axis=1) < dist
+            frac = float(ok.mean())
+            if ok.sum() < 50:
+                return T_ij
+            P, Y, N = P[ok], Y[ok], N[ok]
+            r = np.sum(N * (P - Y), axis=1)
+            J = np.concatenate([N, np.cross(P, N)], axis=1)
+            w = 1.0 / np.maximum(1.0, np.abs(r) / (0.25 * dist))  # Huber weights
+            A = J.T @ (J * w[:, None])
+            b = -J.T @ (w * r)
+            try:
+                d = np.linalg.solve(A + 1e-9 * np.eye(6), b)
+            except np.linalg.LinAlgError:
+                return T_ij
+            dR = so3.to_matrix(so3.exp(d[3:]))
+            R, t = dR @ R, dR @ t + d[:3]
+            if np.linalg.norm(d) < 1e-7:
+                break
+        rot_change = np.linalg.norm(so3.log(so3.from_matrix(R.T @ R0)))
+        if (
+            frac < cfg.icp_min_frac
+            or np.linalg.norm(t - t0) > cfg.icp_max_change
+            or rot_change > cfg.icp_max_change
+            or not np.all(np.isfinite(t))
+        ):
+            return T_ij
+        return np.concatenate([t, so3.from_matrix(R), [1.0]])
 
     def _pnp(self, obj: FloatArray, img: FloatArray, K: FloatArray, flags: int):
         """RANSAC PnP with ``flags`` + LM refinement, then a sanity check of the result.
@@ -299,12 +407,17 @@ class RGBDPrior:
         T_ij, n = self.relative_pose(frame_i, frame_j)
         self.last_inliers = n
         X_ji = sim3.act(T_ij, X_jj)
-        if n < self.cfg.min_inliers:
-            C_ji = np.ones_like(C_jj)
-        else:
-            C_ji = self._consistency(X_ji, C_jj, frame_i, valid_i)
         D_ii, Q_ii = self._desc(frame_i)
         D_jj, Q_jj = self._desc(frame_j)
+        if n < self.cfg.min_inliers:
+            # No pose: X_ji is j's pointmap left in camera j, so every correspondence the
+            # matcher would find is a guess. C_ji = 1 and a descriptor confidence so low that
+            # the match quality sqrt(Q_ii Q_ji) stays below upstream's Q_conf gate make
+            # tracking, edges and relocalisation reject the pair instead of building on it.
+            C_ji = np.ones_like(C_jj)
+            Q_jj = np.full_like(Q_jj, FAILED_Q)
+        else:
+            C_ji = self._consistency(X_ji, C_jj, frame_i, valid_i)
         return PairPrediction(X_ii, C_ii, D_ii, Q_ii, X_ji, C_ji, D_jj, Q_jj)
 
     def _consistency(self, X_ji, C_jj, frame_i: Frame, valid_i: np.ndarray) -> FloatArray:
