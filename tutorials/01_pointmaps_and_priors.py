@@ -23,7 +23,6 @@
 # 5. upstream's resize to the network resolution and the matching intrinsics.
 
 # %%
-import sys
 import tempfile
 from pathlib import Path
 
@@ -32,12 +31,6 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
-
-try:
-    import mslam_ref  # noqa: F401
-except ImportError:  # running from a checkout without `pip install -e .`
-    sys.path.insert(0, str(Path.cwd() / "reference"))
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "reference"))
 
 from mslam_ref import sim3, so3
 from mslam_ref.pointmap import backproject, camera_rays, intrinsics_after_resize, resize_img

@@ -19,13 +19,9 @@
 # %%
 import itertools
 import os
-import sys
-from pathlib import Path
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("MPLBACKEND", "Agg")
-ROOT = Path(__file__).resolve().parents[1] if "__file__" in globals() else Path.cwd().parent
-sys.path[:0] = [str(ROOT / "reference"), str(ROOT / "fast")]
 
 import matplotlib.pyplot as plt
 import numpy as np
