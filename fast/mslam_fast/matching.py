@@ -1,14 +1,17 @@
 """Taichi twin of ``mslam_ref.matching`` — same names, parameters and shapes; see there for the maths.
 
-Parallel axis: one thread per target pixel n of image 2 (``ti.ndrange(B, N)``), no reductions.
+Parallel axis: target pixels n of image 2, no reductions; the LM runs ``LANES`` = 4 pixels per
+thread in lockstep (``ti.ndrange(B, ceil(N / LANES))``: independent dependency chains for the
+out-of-order core), the refinement one pixel per thread (``ti.ndrange(B, N)``).
 ``match`` runs everything in one kernel call, so nothing goes back to the host between stages:
 loop 1 writes the unit rays into a (B, H, W, 9) scratch image, loop 2 their Scharr gradients,
 loops 3 and 4 cast the descriptors to the runtime type into zeroed scratch rows (image 1 with a
-border of radius·dilation_max zero pixels, F padded to a multiple of 8), loop 5 runs per pixel
-the LM (10 iterations, all taps of the 9-channel image per sample, the accepted sample re-used
-by the next iteration), the truncation and distance test, and the descriptor refinement (245
-dot products of length F; the 7 candidates of a column share one vectorised loop over F, and
-the zero border replaces the inside-image test). ``radius`` is a compile-time constant of the
+border of radius·dilation_max zero pixels, F padded to a multiple of 8), loop 5 runs the LM
+(10 iterations, all taps of the 9-channel image per sample, the accepted sample re-used by the
+next iteration), the truncation and distance test, and writes the truncated positions to
+``idx``; loop 6 (only if radius > 0) refines them in place (245 dot products of length F; the
+7 candidates of a column share one vectorised loop over F, and the zero border replaces the
+inside-image test). ``radius`` is a compile-time constant of the
 kernels (one compilation per value).
 
 Precision: everything follows the runtime float type (f64 or f32), descriptors included
@@ -37,6 +40,7 @@ __all__ = [
 
 Array = np.ndarray[Any, Any]
 nd = ti.types.ndarray()
+LANES = 4  # pixels per thread in the LM (lockstep, see K.lm_lanes)
 _PAD = 8  # descriptor padding of F to a multiple of 8 (see _scratch)
 
 
@@ -63,17 +67,38 @@ def _rays_k(X: nd, RG: nd):
     _ray_image(X, RG)
 
 
+@ti.func
+def _targets(X21: ti.template(), b, g, N, L: ti.template()):
+    """Unit targets of pixels g·L .. g·L + L − 1 (clamped to N − 1) as an (L, 3) matrix."""
+    T = ti.Matrix([[0.0] * 3 for _ in ti.static(range(L))])
+    for l in ti.static(range(L)):
+        n = ti.min(g * L + l, N - 1)
+        t = K.normalize3(ti.Vector([X21[b, n, 0], X21[b, n, 1], X21[b, n, 2]]))
+        for c in ti.static(range(3)):
+            T[l, c] = t[c]
+    return T
+
+
 @ti.kernel
 def _iter_proj_k(
     RG: nd, X21: nd, P0: nd, P: nd, conv: nd, max_iter: ti.i32, lam0: float, thresh: float
 ):
     H, W = RG.shape[1], RG.shape[2]
-    for b, n in ti.ndrange(X21.shape[0], X21.shape[1]):
-        t = K.normalize3(ti.Vector([X21[b, n, 0], X21[b, n, 1], X21[b, n, 2]]))
-        u, v, c = K.lm_pixel(RG, b, t, P0[b, n, 0], P0[b, n, 1], H, W, max_iter, lam0, thresh)
-        P[b, n, 0] = u
-        P[b, n, 1] = v
-        conv[b, n] = ti.cast(c, ti.u8)
+    N = X21.shape[1]
+    for b, g in ti.ndrange(X21.shape[0], (N + LANES - 1) // LANES):
+        T = _targets(X21, b, g, N, LANES)
+        u0 = ti.Vector([0.0] * LANES)
+        v0 = ti.Vector([0.0] * LANES)
+        for l in ti.static(range(LANES)):
+            n = ti.min(g * LANES + l, N - 1)
+            u0[l], v0[l] = P0[b, n, 0], P0[b, n, 1]
+        u, v, c = K.lm_lanes(RG, b, T, u0, v0, H, W, max_iter, lam0, thresh, LANES)
+        for l in ti.static(range(LANES)):
+            n = g * LANES + l
+            if n < N:
+                P[b, n, 0] = u[l]
+                P[b, n, 1] = v[l]
+                conv[b, n] = ti.cast(c[l], ti.u8)
 
 
 @ti.func
@@ -139,37 +164,47 @@ def _match_k(
     H, W = X11.shape[1], X11.shape[2]
     K.pad_descriptors(D11, D1p, H, W, radius * dmax)  # top level (parallel): no `if radius > 0`
     _copy_rows(D21, D2p)
-    for b, n in ti.ndrange(X21.shape[0], X21.shape[1]):
-        i0 = n
-        if use_init != 0:
-            i0 = ti.cast(idx0[b, n], ti.i32)
-        X2 = ti.Vector([X21[b, n, 0], X21[b, n, 1], X21[b, n, 2]])
-        t = K.normalize3(X2)
-        u_f, v_f, conv = K.lm_pixel(
-            RG,
-            b,
-            t,
-            ti.cast(i0 % W, float),
-            ti.cast(i0 // W, float),
-            H,
-            W,
-            max_iter,
-            lam0,
-            thresh,
-        )
-        u, v = ti.cast(u_f, ti.i32), ti.cast(v_f, ti.i32)  # truncation (u_f, v_f >= 1)
-        X1 = K.load3(X11, b, v, u)
-        d = X1 - X2
-        ok = (
-            conv != 0
-            and ti.sqrt(K.dot3(d, d)) < dist_thresh
-            and ti.sqrt(K.dot3(X2, X2)) > K.NORM_EPS
-            and ti.sqrt(K.dot3(X1, X1)) > K.NORM_EPS
-        )
-        if radius > 0:
-            u, v = K.refine_pixel(D1p, D2p, b, b * H * W + n, u, v, H, W, radius, dmax)
-        idx[b, n] = ti.cast(u, ti.i64) + ti.cast(W, ti.i64) * ti.cast(v, ti.i64)
-        valid[b, n] = ti.cast(1 if ok else 0, ti.u8)
+    N = H * W
+    for b, g in ti.ndrange(X21.shape[0], (N + LANES - 1) // LANES):
+        T = _targets(X21, b, g, N, LANES)
+        u0 = ti.Vector([0.0] * LANES)
+        v0 = ti.Vector([0.0] * LANES)
+        for l in ti.static(range(LANES)):
+            i0 = ti.min(g * LANES + l, N - 1)
+            if use_init != 0:
+                i0 = ti.cast(idx0[b, i0], ti.i32)
+            u0[l], v0[l] = ti.cast(i0 % W, float), ti.cast(i0 // W, float)
+        u_f, v_f, conv = K.lm_lanes(RG, b, T, u0, v0, H, W, max_iter, lam0, thresh, LANES)
+        for l in ti.static(range(LANES)):
+            n = g * LANES + l
+            if n < N:
+                u, v = ti.cast(u_f[l], ti.i32), ti.cast(v_f[l], ti.i32)  # truncation (>= 1)
+                X2 = ti.Vector([X21[b, n, 0], X21[b, n, 1], X21[b, n, 2]])
+                X1 = K.load3(X11, b, v, u)
+                d = X1 - X2
+                ok = (
+                    conv[l] != 0
+                    and ti.sqrt(K.dot3(d, d)) < dist_thresh
+                    and ti.sqrt(K.dot3(X2, X2)) > K.NORM_EPS
+                    and ti.sqrt(K.dot3(X1, X1)) > K.NORM_EPS
+                )
+                idx[b, n] = ti.cast(u, ti.i64) + ti.cast(W, ti.i64) * ti.cast(v, ti.i64)
+                valid[b, n] = ti.cast(1 if ok else 0, ti.u8)
+    if ti.static(radius > 0):  # loop 6: refinement from the truncated LM positions in idx
+        for b, n in ti.ndrange(X21.shape[0], N):
+            u, v = K.refine_pixel(
+                D1p,
+                D2p,
+                b,
+                b * N + n,
+                ti.cast(idx[b, n] % W, ti.i32),
+                ti.cast(idx[b, n] // W, ti.i32),
+                H,
+                W,
+                radius,
+                dmax,
+            )
+            idx[b, n] = ti.cast(u, ti.i64) + ti.cast(W, ti.i64) * ti.cast(v, ti.i64)
 
 
 # --- host wrappers -------------------------------------------------------------------------
@@ -239,7 +274,7 @@ def iter_proj(
     p_init: Any,
     cfg: MatchingConfig = MatchingConfig(),  # noqa: B008 (frozen, immutable)
 ) -> tuple[Array, Array]:
-    """Taichi twin of ``mslam_ref.matching.iter_proj`` (one thread per target pixel)."""
+    """Taichi twin of ``mslam_ref.matching.iter_proj`` (``LANES`` target pixels per thread)."""
     RG, batched = _ref._image_batch(rays_with_grad, "rays_with_grad", 9)
     RG = _float(RG, "rays_with_grad")
     B = RG.shape[0]

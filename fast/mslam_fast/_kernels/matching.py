@@ -1,8 +1,9 @@
 """``@ti.func`` building blocks of pointmap matching; the maths is in ``mslam_ref.matching``.
 
-One Taichi thread handles one target pixel n of image 2: the Levenberg–Marquardt on its pixel
-position (``lm_pixel``), truncation and the 3-D distance test (in the fused kernel of
-``mslam_fast.matching``), then the descriptor refinement (``refine_pixel``). Every arithmetic
+One Taichi thread runs the Levenberg–Marquardt on the pixel positions of L target pixels of
+image 2 in lockstep (``lm_lanes``), then truncation and the 3-D distance test (in the fused
+kernel of ``mslam_fast.matching``); a second loop refines one pixel per thread
+(``refine_pixel``). Every arithmetic
 expression is written in the order of the NumPy reference (dot products of 3-vectors as
 ``a0 b0 + a1 b1 + a2 b2``, bilinear taps in the order 00, 10, 01, 11) so that float64 runs
 agree bit for bit up to LLVM's fused multiply-adds.
@@ -102,42 +103,64 @@ def clamp(x, lo, hi):
 
 
 @ti.func
-def lm_pixel(RG: ti.template(), b, t, u_init, v_init, H, W, max_iter, lam0, thresh):
-    """Per-pixel LM of ``mslam_ref.matching.iter_proj``; returns (u, v, converged)."""
-    u = clamp(u_init, 1.0, W - 2.0)
-    v = clamp(v_init, 1.0, H - 2.0)
-    lam = lam0
-    conv = 0
-    S = sample9(RG, b, u, v)
-    n_iter = max_iter
-    if ti.sqrt(dot3(t, t)) <= NORM_EPS:
-        n_iter = 0  # a zero target keeps its clamped start (as the reference)
-    for _ in range(n_iter):
-        cost, e = ray_cost(S, t)
-        gx = ti.Vector([S[3], S[4], S[5]])
-        gy = ti.Vector([S[6], S[7], S[8]])
-        A00 = dot3(gx, gx) + lam
-        A01 = dot3(gx, gy)
-        A11 = dot3(gy, gy) + lam
-        b0 = -dot3(e, gx)
-        b1 = -dot3(e, gy)
-        det = A00 * A11 - A01 * A01
-        du = 0.0 * lam
-        dv = 0.0 * lam
-        if det > DET_MIN:  # §3.2: closed-form 2x2 solve of (JᵀJ + λI) δ = −Jᵀe
-            du = (A11 * b0 - A01 * b1) / det
-            dv = (A00 * b1 - A01 * b0) / det
-        u_new = clamp(u + du, 1.0, W - 2.0)
-        v_new = clamp(v + dv, 1.0, H - 2.0)
-        S_new = sample9(RG, b, u_new, v_new)
-        new_cost, _e = ray_cost(S_new, t)
-        if new_cost < cost:
-            u, v, S = u_new, v_new, S_new
-            lam *= 0.1
-            conv = 1 if new_cost < thresh else 0
-        else:
-            lam *= 10.0
-            conv = 1 if cost < thresh else 0
+def lm_lanes(
+    RG: ti.template(), b, T, u_init, v_init, H, W, max_iter, lam0, thresh, L: ti.template()
+):
+    """Per-pixel LM of ``mslam_ref.matching.iter_proj`` for L pixels in lockstep.
+
+    ``T (L, 3)`` holds the unit targets, ``u_init``/``v_init`` the L starts; returns the L-vectors
+    (u, v, converged). Each pixel's iterations form one long dependency chain (sample, cost,
+    2x2 solve, sample), so a single pixel leaves the core waiting on latencies; the L
+    independent chains of one iteration sit side by side in the instruction stream for the
+    out-of-order core to overlap. Accept/reject and the singular-system test are branch-free
+    (``ti.select``) with the reference's values: a lane with a zero target keeps its clamped
+    start and ``converged = 0`` (the reference runs no iteration for it).
+    """
+    u = ti.Vector([0.0] * L)
+    v = ti.Vector([0.0] * L)
+    lam = ti.Vector([0.0] * L)
+    conv = ti.Vector([0] * L)
+    act = ti.Vector([0] * L)
+    S = ti.Matrix([[0.0] * 9 for _ in ti.static(range(L))])
+    for l in ti.static(range(L)):
+        u[l] = clamp(u_init[l], 1.0, W - 2.0)
+        v[l] = clamp(v_init[l], 1.0, H - 2.0)
+        lam[l] = lam0
+        t = ti.Vector([T[l, 0], T[l, 1], T[l, 2]])
+        act[l] = 1 if ti.sqrt(dot3(t, t)) > NORM_EPS else 0
+        S0 = sample9(RG, b, u[l], v[l])
+        for c in ti.static(range(9)):
+            S[l, c] = S0[c]
+    for _ in range(max_iter):
+        for l in ti.static(range(L)):
+            t = ti.Vector([T[l, 0], T[l, 1], T[l, 2]])
+            Sl = ti.Vector([S[l, c] for c in ti.static(range(9))])
+            cost, e = ray_cost(Sl, t)
+            gx = ti.Vector([Sl[3], Sl[4], Sl[5]])
+            gy = ti.Vector([Sl[6], Sl[7], Sl[8]])
+            A00 = dot3(gx, gx) + lam[l]
+            A01 = dot3(gx, gy)
+            A11 = dot3(gy, gy) + lam[l]
+            b0 = -dot3(e, gx)
+            b1 = -dot3(e, gy)
+            det = A00 * A11 - A01 * A01
+            ok = det > DET_MIN  # §3.2: closed-form 2x2 solve of (JᵀJ + λI) δ = −Jᵀe
+            det_s = ti.select(ok, det, 1.0)
+            du = ti.select(ok, (A11 * b0 - A01 * b1) / det_s, 0.0)
+            dv = ti.select(ok, (A00 * b1 - A01 * b0) / det_s, 0.0)
+            u_new = clamp(u[l] + du, 1.0, W - 2.0)
+            v_new = clamp(v[l] + dv, 1.0, H - 2.0)
+            S_new = sample9(RG, b, u_new, v_new)
+            new_cost, _e = ray_cost(S_new, t)
+            better = new_cost < cost
+            acc = better and act[l] != 0
+            u[l] = ti.select(acc, u_new, u[l])
+            v[l] = ti.select(acc, v_new, v[l])
+            for c in ti.static(range(9)):
+                S[l, c] = ti.select(acc, S_new[c], S[l, c])
+            lam[l] = ti.select(better, lam[l] * 0.1, lam[l] * 10.0)
+            c_it = ti.select(better, new_cost < thresh, cost < thresh)
+            conv[l] = ti.select(act[l] != 0, ti.cast(c_it, ti.i32), conv[l])
     return u, v, conv
 
 
