@@ -49,19 +49,7 @@ __all__ = [
 Array = np.ndarray[Any, Any]
 nd = ti.types.ndarray()
 
-#: Pixels per reduction chunk (one partial sum each).
-CHUNK = 1024
-
-
-@ti.func
-def _row(J, r):
-    return ti.Vector([J[r, b] for b in ti.static(range(7))])
-
-
-@ti.func
-def _load3(A: ti.template(), r):
-    """Point r of a flat (3·rows,) array (compile-time stride 3: see mslam_fast.tracking)."""
-    return ti.Vector([A[3 * r], A[3 * r + 1], A[3 * r + 2]])
+CHUNK = KT.CHUNK
 
 
 @ti.kernel
@@ -101,9 +89,9 @@ def _linearize_k(
                 ok = (valid[d, k] != 0) & (q > Q_conf) & (C[i, m] > C_conf) & (C[j, k] > C_conf)
                 zero3 = ti.Vector([0.0, 0.0, 0.0])
                 sq = ti.sqrt(ti.select(ok, q, 0.0))
-                P = S.sim3_act(Tij, ti.select(ok, _load3(X, j * n + k), zero3))
+                P = S.sim3_act(Tij, ti.select(ok, KT.load3(X, j * n + k), zero3))
                 p, dd, inv_d = KT.unit_norm_inv(P)
-                pi, di = KT.unit_and_norm(ti.select(ok, _load3(X, i * n + m), zero3))
+                pi, di = KT.unit_and_norm(ti.select(ok, KT.load3(X, i * n + m), zero3))
                 KT.accumulate_rays(acc, p, inv_d, p - pi, sq * s1_inv, KT.HUBER_K)
                 e, si = dd - di, sq * s2_inv
                 Jd = ti.Vector([p[0], p[1], p[2], 0.0, 0.0, 0.0, dd])  # distance row
@@ -140,7 +128,7 @@ def _linearize_k(
                     if ti.static(r < 2):
                         si = sq * s1_inv
                     w = si * si * KT.huber(si * e, KT.HUBER_K)
-                    KT.accumulate(acc, _row(J, r), e, w, KT.ZERO_CALIB[r])
+                    KT.accumulate(acc, KT.row(J, r), e, w, KT.ZERO_CALIB[r])
         for t in ti.static(range(18)):
             out[d, c, t] = acc[t]
         for t in ti.static(range(18, KT.NACC)):

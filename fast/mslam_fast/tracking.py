@@ -52,21 +52,7 @@ __all__ = [
 Array = np.ndarray[Any, Any]
 nd = ti.types.ndarray()
 
-#: Pixels per reduction chunk (one partial sum each).
-CHUNK = 1024
-
-
-@ti.func
-def _row(J, r):
-    return ti.Vector([J[r, b] for b in ti.static(range(7))])
-
-
-@ti.func
-def _load3(A: ti.template(), k):
-    """Point k of a flat (3N,) array: the stride 3 is a compile-time constant (a runtime
-    (N, 3) shape would make LLVM version the vectorised pixel loop on a stride-1 check that
-    fails, falling back to scalar code)."""
-    return ti.Vector([A[3 * k], A[3 * k + 1], A[3 * k + 2]])
+CHUNK = KT.CHUNK
 
 
 @ti.kernel
@@ -83,9 +69,9 @@ def _linearize_k(T: nd, Xf: nd, Xk: nd, Q: nd, valid: nd, prm: nd, out: nd, cali
                 ok = valid[k] != 0
                 zero3 = ti.Vector([0.0, 0.0, 0.0])
                 sq = ti.sqrt(ti.select(ok, Q[k], 0.0))
-                P = S.sim3_act(Tv, ti.select(ok, _load3(Xf, k), zero3))
+                P = S.sim3_act(Tv, ti.select(ok, KT.load3(Xf, k), zero3))
                 p, d, inv_d = KT.unit_norm_inv(P)
-                pk, dk = KT.unit_and_norm(ti.select(ok, _load3(Xk, k), zero3))
+                pk, dk = KT.unit_and_norm(ti.select(ok, KT.load3(Xk, k), zero3))
                 KT.accumulate_rays(acc, p, inv_d, pk - p, sq * s1_inv, hk)
                 e, si = dk - d, sq * s2_inv
                 Jd = ti.Vector([p[0], p[1], p[2], 0.0, 0.0, 0.0, d])  # distance row
@@ -96,7 +82,7 @@ def _linearize_k(T: nd, Xf: nd, Xk: nd, Q: nd, valid: nd, prm: nd, out: nd, cali
                 border, eps = ti.cast(prm[7], float), ti.cast(prm[8], float)
                 Wd = ti.cast(prm[9], ti.i32)
                 Hd = ti.cast(prm[10], ti.i32)
-                P = S.sim3_act(Tv, _load3(Xf, k))
+                P = S.sim3_act(Tv, KT.load3(Xf, k))
                 zk = Xk[3 * k + 2]
                 ok_z = (valid[k] != 0) & (zk > eps) & (P[2] > eps)
                 safe = ti.Vector([0.0, 0.0, 1.0])
@@ -118,7 +104,7 @@ def _linearize_k(T: nd, Xf: nd, Xk: nd, Q: nd, valid: nd, prm: nd, out: nd, cali
                     if ti.static(r < 2):
                         si = sq * s1_inv
                     w = si * si * KT.huber(si * e, hk)
-                    KT.accumulate(acc, _row(J, r), e, w, KT.ZERO_CALIB[r])
+                    KT.accumulate(acc, KT.row(J, r), e, w, KT.ZERO_CALIB[r])
         KT.store_acc(out, c, acc)
 
 

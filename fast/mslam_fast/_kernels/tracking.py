@@ -19,6 +19,24 @@ NACC = 36
 HUBER_K = 1.345
 
 
+#: Pixels per reduction chunk of the tracking and backend kernels (one partial sum each).
+CHUNK = 1024
+
+
+@ti.func
+def row(J, r):
+    """Row ``r`` of a 7-column matrix as a 7-vector."""
+    return ti.Vector([J[r, b] for b in ti.static(range(7))])
+
+
+@ti.func
+def load3(A: ti.template(), k):
+    """Point k of a flat (3N,) array: the stride 3 is a compile-time constant (a runtime
+    (N, 3) shape would make LLVM version the vectorised pixel loop on a stride-1 check that
+    fails, falling back to scalar code)."""
+    return ti.Vector([A[3 * k], A[3 * k + 1], A[3 * k + 2]])
+
+
 @ti.func
 def huber(x, k):
     """IRLS Huber weight: 1 if |x| < k else k/|x|."""
