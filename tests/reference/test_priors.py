@@ -376,3 +376,51 @@ def test_mast3r_torch_backend() -> None:
     t = b.to_tensor(np.ones((2, 3), np.float32))
     assert isinstance(t, torch.Tensor)
     np.testing.assert_array_equal(b.to_numpy(b.as_float(t)), np.ones((2, 3)))
+
+
+def test_mast3r_adapter_with_stand_in_torch_module() -> None:
+    """The adapter drives a torch ``nn.Module`` with upstream's interface (encoder on 16x16
+    patches, two-view decoder, per-view heads returning raw outputs) through ``TorchBackend``."""
+    torch = pytest.importorskip("torch")
+    from mslam_ref.priors.mast3r import Mast3rConfig, Mast3rPrior, TorchBackend
+
+    class StandIn(torch.nn.Module):
+        def __init__(self) -> None:
+            super().__init__()
+            torch.manual_seed(0)
+            self.embed = torch.nn.Conv2d(3, 16, kernel_size=16, stride=16)
+            self.mix = torch.nn.Linear(32, 16)
+            self.heads = torch.nn.ModuleList([torch.nn.Linear(16, 256 * 29) for _ in range(2)])
+            self.encoded = 0
+
+        def _encode_image(self, img, true_shape):
+            self.encoded += 1
+            feat = self.embed(img).flatten(2).transpose(1, 2)  # (1, HW/256, 16)
+            return feat, torch.zeros((*feat.shape[:2], 2), dtype=torch.long), None
+
+        def _decoder(self, f1, p1, f2, p2):
+            return [self.mix(torch.cat([f1, f2], -1))], [self.mix(torch.cat([f2, f1], -1))]
+
+        def _downstream_head(self, head, toks, shape):
+            H, W = (int(x) for x in shape[0])
+            out = self.heads[head - 1](toks[-1]).reshape(1, H // 16, W // 16, 16, 16, 29)
+            out = out.permute(0, 1, 3, 2, 4, 5).reshape(1, H, W, 29)
+            return {
+                "pts3d": out[..., :3] * 0.1 + torch.tensor([0.0, 0.0, 1.0]),
+                "conf": out[..., 3],
+                "desc": out[..., 4:28],
+                "desc_conf": out[..., 28],
+            }
+
+    seq = make_sequence("loop", n_frames=3, width=W, height=H, seed=0)
+    net = StandIn().eval()
+    prior = Mast3rPrior(net, Mast3rConfig(apply_activations=True), backend=TorchBackend("cpu"))
+    pred = prior.pair(seq[0], seq[1])
+    check_prediction(pred)  # C >= 1, unit descriptors, Q > 0, finite
+    assert pred.X_ii.shape == (384, 512, 3) and pred.D_ji.shape == (384, 512, 24)
+    assert pred.X_ii.dtype == np.float64
+    again = prior.pair(seq[0], seq[1])
+    np.testing.assert_array_equal(again.X_ji, pred.X_ji)  # deterministic
+    assert net.encoded == 2  # encoder outputs cached per frame
+    X, C = prior.mono(seq[2])
+    assert X.shape == (384, 512, 3) and np.all(C >= 1.0)
