@@ -80,24 +80,27 @@ def _linearize_k(T: nd, Xf: nd, Xk: nd, Q: nd, valid: nd, prm: nd, out: nd, cali
                 fx, fy = ti.cast(prm[3], float), ti.cast(prm[4], float)
                 cx, cy = ti.cast(prm[5], float), ti.cast(prm[6], float)
                 border, eps = ti.cast(prm[7], float), ti.cast(prm[8], float)
-                Wd = ti.cast(prm[9], ti.i32)
-                Hd = ti.cast(prm[10], ti.i32)
+                Wf, Hf = ti.cast(prm[9], float), ti.cast(prm[10], float)
                 P = S.sim3_act(Tv, KT.load3(Xf, k))
                 zk = Xk[3 * k + 2]
                 ok_z = (valid[k] != 0) & (zk > eps) & (P[2] > eps)
                 safe = ti.Vector([0.0, 0.0, 1.0])
-                uv, _J = KT.calib_rows(ti.select(ok_z, P, safe), fx, fy, cx, cy)
+                # Rows at the safe point are finite; outside the image e = 0 and w = 0 below.
+                uv, J = KT.calib_rows(ti.select(ok_z, P, safe), fx, fy, cx, cy)
                 ok = (
                     ok_z
                     & (uv[0] > border)
-                    & (uv[0] < Wd - 1 - border)
+                    & (uv[0] < Wf - 1.0 - border)
                     & (uv[1] > border)
-                    & (uv[1] < Hd - 1 - border)
+                    & (uv[1] < Hf - 1.0 - border)
                 )
-                _uv, J = KT.calib_rows(ti.select(ok, P, safe), fx, fy, cx, cy)  # finite rows
                 sq = ti.sqrt(ti.select(ok, Q[k], 0.0))
                 lzk = ti.cast(KT.log_pos(ti.select(ok_z, zk, 1.0)), float)
-                meas = ti.Vector([ti.cast(k % Wd, float), ti.cast(k // Wd, float), lzk])
+                # Pixel (u, v) of k without integer division (no SIMD form): exact for k < 2^24
+                # since (k + 0.5)/W stays >= 0.5/W away from an integer.
+                kf = ti.cast(k, float)
+                vf = ti.floor((kf + 0.5) / Wf)
+                meas = ti.Vector([kf - vf * Wf, vf, lzk])
                 for r in ti.static(range(3)):
                     e = ti.select(ok, meas[r] - uv[r], 0.0)
                     si = sq * s2_inv
