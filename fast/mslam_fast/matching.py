@@ -27,8 +27,8 @@ import taichi as ti
 
 from mslam_fast._kernels import matching as K
 from mslam_fast._runtime import ensure_init
-from mslam_ref import matching as _ref
 from mslam_ref.matching import MatchingConfig
+from mslam_ref.matching_inputs import check_match_inputs, image_batch, int_pixels
 
 __all__ = [
     "MatchingConfig",
@@ -260,7 +260,7 @@ def _flags(a: Array) -> Array:
 
 def ray_image_and_gradients(X11: Any) -> Array:
     """Taichi twin of ``mslam_ref.matching.ray_image_and_gradients`` (two parallel loops)."""
-    X, _ = _ref._image_batch(X11, "X11", 3)
+    X, _ = image_batch(X11, "X11", 3)
     X = _points(X)
     RG = np.empty((*X.shape[:-1], 9), dtype=X.dtype)
     if X.shape[0] > 0:
@@ -275,7 +275,7 @@ def iter_proj(
     cfg: MatchingConfig = MatchingConfig(),  # noqa: B008 (frozen, immutable)
 ) -> tuple[Array, Array]:
     """Taichi twin of ``mslam_ref.matching.iter_proj`` (``LANES`` target pixels per thread)."""
-    RG, batched = _ref._image_batch(rays_with_grad, "rays_with_grad", 9)
+    RG, batched = image_batch(rays_with_grad, "rays_with_grad", 9)
     RG = _float(RG, "rays_with_grad")
     B = RG.shape[0]
     lead = (B,) if batched else ()
@@ -311,14 +311,14 @@ def refine_matches(
     cfg: MatchingConfig = MatchingConfig(),  # noqa: B008 (frozen, immutable)
 ) -> Array:
     """Taichi twin of ``mslam_ref.matching.refine_matches`` (245 vectorised dot products/thread)."""
-    D1, batched = _ref._image_batch(D11, "D11", None)
+    D1, batched = image_batch(D11, "D11", None)
     B, H, W, F = D1.shape
     lead = (B,) if batched else ()
     D2 = np.asarray(D21)
     if D2.ndim != len(lead) + 2 or D2.shape[:-2] != lead or D2.shape[-1] != F:
         raise ValueError(f"D21: expected shape (N, {F}) or (B, N, {F}), got {D2.shape}")
     N = D2.shape[-2]
-    p = _ref._int_pixels(p1, "p1", (*D2.shape[:-1], 2), H, W).reshape(B, N, 2)
+    p = int_pixels(p1, "p1", (*D2.shape[:-1], 2), H, W).reshape(B, N, 2)
     D1, D2 = _descriptors(D1.reshape(-1, F), "D11"), _descriptors(D2.reshape(-1, F), "D21")
     out = np.empty_like(p)
     if out.size:
@@ -338,7 +338,7 @@ def match(
 ) -> tuple[Array, Array]:
     """Taichi twin of ``mslam_ref.matching.match`` (one fused kernel: rays, gradients, LM,
     truncation, distance test, refinement)."""
-    X1, X2, D1, D2, idx0, batched = _ref._check_match_inputs(X11, X21, D11, D21, idx_init)
+    X1, X2, D1, D2, idx0, batched = check_match_inputs(X11, X21, D11, D21, idx_init)
     B, H, W, F = D1.shape
     N = H * W
     if idx0 is None:

@@ -26,6 +26,8 @@ whose own point, or whose match's point, is such a point is marked invalid. No N
 Public names, in reading order:
     MatchingConfig, normalize, scharr_gradients, ray_image_and_gradients, bilinear_sample,
     iter_proj, refine_matches, match
+(``scharr_gradients`` and ``bilinear_sample`` live in ``mslam_ref.image_ops``, the shape checks
+in ``mslam_ref.matching_inputs``.)
 """
 
 from __future__ import annotations
@@ -36,6 +38,8 @@ from typing import Any
 import numpy as np
 
 from mslam_ref.conventions import BoolArray, FloatArray, IntArray, as_float_array
+from mslam_ref.image_ops import bilinear_sample, scharr_gradients
+from mslam_ref.matching_inputs import check_match_inputs, image_batch, int_pixels
 
 __all__ = [
     "DET_MIN",
@@ -135,58 +139,7 @@ def _point_ok(X: FloatArray) -> BoolArray:
     return np.sqrt(_dot3(X, X)) > NORM_EPS
 
 
-def _image_batch(x: Any, name: str, channels: int | None) -> tuple[FloatArray, bool]:
-    """Return ``x`` as (B, H, W, C) and whether it had a batch axis; H, W >= 3."""
-    arr = np.asarray(x)
-    if arr.ndim not in (3, 4) or (channels is not None and arr.shape[-1] != channels):
-        want = f"(H, W, {channels or 'F'})"
-        raise ValueError(f"{name}: expected shape {want} or (B, *{want}), got {arr.shape}")
-    if arr.shape[-3] < 3 or arr.shape[-2] < 3:
-        raise ValueError(f"{name}: images must be at least 3x3 pixels, got shape {arr.shape}")
-    batched = arr.ndim == 4
-    return (arr if batched else arr[None]), batched
-
-
 # --- §4.1 ray image and gradients ------------------------------------------------------------
-
-
-def scharr_gradients(img: Any) -> tuple[FloatArray, FloatArray]:
-    """Scharr-type image gradients per channel with reflect padding, as cross-correlation.
-
-    Upstream: image.py::img_gradient (F.pad reflect 1 px, F.conv2d per channel).
-
-        gx = (1/32) [[-3, 0, 3], [-10, 0, 10], [-3, 0, 3]]   ⋆ img
-        gy = (1/32) [[-3, -10, -3], [0, 0, 0], [3, 10, 3]]   ⋆ img
-
-    On a linear ramp ``img = a u + b v`` the interior gradients are exactly (a, b).
-
-    Args:
-        img: (..., H, W, C) image, H, W >= 2.
-
-    Returns:
-        gx, gy: (..., H, W, C) float64 derivatives along u (columns) and v (rows).
-    """
-    img = as_float_array(img, "img")
-    if img.ndim < 3 or img.shape[-3] < 2 or img.shape[-2] < 2:
-        raise ValueError(f"img: expected (..., H, W, C) with H, W >= 2, got shape {img.shape}")
-    pad = [(0, 0)] * (img.ndim - 3) + [(1, 1), (1, 1), (0, 0)]
-    P = np.pad(img, pad, mode="reflect")
-    H, W = img.shape[-3], img.shape[-2]
-
-    def tap(dv: int, du: int) -> FloatArray:  # P at (v + dv, u + du) for every pixel (v, u)
-        return P[..., 1 + dv : 1 + dv + H, 1 + du : 1 + du + W, :]
-
-    gx = (
-        3.0 * (tap(-1, 1) - tap(-1, -1))
-        + 10.0 * (tap(0, 1) - tap(0, -1))
-        + 3.0 * (tap(1, 1) - tap(1, -1))
-    ) / 32.0
-    gy = (
-        3.0 * (tap(1, -1) - tap(-1, -1))
-        + 10.0 * (tap(1, 0) - tap(-1, 0))
-        + 3.0 * (tap(1, 1) - tap(-1, 1))
-    ) / 32.0
-    return gx, gy
 
 
 def ray_image_and_gradients(X11: Any) -> FloatArray:
@@ -201,54 +154,13 @@ def ray_image_and_gradients(X11: Any) -> FloatArray:
     Returns:
         (H, W, 9) or (B, H, W, 9) float64: unit rays R, then gx(R), then gy(R) (Scharr, 1/32).
     """
-    X, _ = _image_batch(X11, "X11", 3)
+    X, _ = image_batch(X11, "X11", 3)
     R = normalize(X)
     gx, gy = scharr_gradients(R)
     return np.concatenate([R, gx, gy], axis=-1).reshape(*np.shape(X11)[:-1], 9)
 
 
 # --- §4.2 per-pixel Levenberg–Marquardt ------------------------------------------------------
-
-
-def bilinear_sample(img: Any, u: Any, v: Any) -> FloatArray:
-    """Bilinear interpolation of an image at sub-pixel positions inside [0, W−1) × [0, H−1).
-
-    Upstream: matching_kernels.cu::bilinear_interp. With u0 = ⌊u⌋, du = u − u0 (same for v):
-
-        I(u, v) = (1−du)(1−dv) I[v0, u0] + du (1−dv) I[v0, u0+1]
-                + (1−du) dv I[v0+1, u0] + du dv I[v0+1, u0+1]
-
-    Args:
-        img: (H, W, C) or (B, H, W, C) image.
-        u, v: (N,) or (B, N) positions with 0 <= u <= W−2, 0 <= v <= H−2 (the LM's clamp
-            guarantees it).
-
-    Returns:
-        (N, C) or (B, N, C) float64 samples.
-    """
-    img = np.asarray(img, dtype=np.float64)
-    u, v = np.asarray(u, dtype=np.float64), np.asarray(v, dtype=np.float64)
-    if img.ndim == 3:
-        return bilinear_sample(img[None], u[None], v[None])[0]
-    if img.ndim != 4 or u.shape != v.shape or u.shape[:1] != img.shape[:1] or u.ndim != 2:
-        raise ValueError(
-            f"img, u, v: expected (B, H, W, C), (B, N), (B, N); got {img.shape}, "
-            f"{u.shape}, {v.shape}"
-        )
-    B, H, W, C = img.shape
-    if np.any(~(u >= 0) | (u > W - 2) | ~(v >= 0) | (v > H - 2)):
-        raise ValueError("u, v: positions must lie in [0, W-2] x [0, H-2]")
-    flat = img.reshape(B, H * W, C)
-    u0, v0 = np.floor(u), np.floor(v)
-    du, dv = (u - u0)[..., None], (v - v0)[..., None]
-    i00 = u0.astype(np.int64) + W * v0.astype(np.int64)
-    b = np.arange(B)[:, None]
-    return (
-        (1.0 - du) * (1.0 - dv) * flat[b, i00]
-        + du * (1.0 - dv) * flat[b, i00 + 1]
-        + (1.0 - du) * dv * flat[b, i00 + W]
-        + du * dv * flat[b, i00 + W + 1]
-    )
 
 
 def _ray_cost(S: FloatArray, t: FloatArray) -> FloatArray:
@@ -290,7 +202,7 @@ def iter_proj(
         p: (N, 2) or (B, N, 2) float64 final (u, v), inside [1, W−2] x [1, H−2].
         converged: (N,) or (B, N) bool.
     """
-    RG, batched = _image_batch(rays_with_grad, "rays_with_grad", 9)
+    RG, batched = image_batch(rays_with_grad, "rays_with_grad", 9)
     RG = as_float_array(RG, "rays_with_grad")
     B, H, W, _ = RG.shape
     lead = (B,) if batched else ()
@@ -360,7 +272,7 @@ def refine_matches(D11: Any, D21: Any, p1: Any, cfg: MatchingConfig = MatchingCo
     Returns:
         (N, 2) or (B, N, 2) int64 refined (u, v).
     """
-    D1, batched = _image_batch(D11, "D11", None)
+    D1, batched = image_batch(D11, "D11", None)
     D1 = as_float_array(D1, "D11")
     B, H, W, F = D1.shape
     lead = (B,) if batched else ()
@@ -368,7 +280,7 @@ def refine_matches(D11: Any, D21: Any, p1: Any, cfg: MatchingConfig = MatchingCo
     if D2.ndim != len(lead) + 2 or D2.shape[:-2] != lead or D2.shape[-1] != F:
         raise ValueError(f"D21: expected shape (N, {F}) or (B, N, {F}), got {D2.shape}")
     N = D2.shape[-2]
-    p = _int_pixels(p1, "p1", (*D2.shape[:-1], 2), H, W).reshape(B, N, 2)
+    p = int_pixels(p1, "p1", (*D2.shape[:-1], 2), H, W).reshape(B, N, 2)
     D2 = D2.reshape(B, N, F)
     flat = D1.reshape(B, H * W, F)
     b = np.arange(B)[:, None]
@@ -391,48 +303,7 @@ def refine_matches(D11: Any, D21: Any, p1: Any, cfg: MatchingConfig = MatchingCo
     return out if batched else out[0]
 
 
-def _int_pixels(p: Any, name: str, shape: tuple[int, ...], H: int, W: int) -> IntArray:
-    """Check an integer pixel array of ``shape`` inside [0, W) x [0, H); return int64."""
-    arr = np.asarray(p)
-    if arr.shape != shape:
-        raise ValueError(f"{name}: expected shape {shape}, got {arr.shape}")
-    if arr.size and not np.issubdtype(arr.dtype, np.integer):
-        raise ValueError(f"{name}: expected integer pixels, got dtype {arr.dtype}")
-    arr = arr.astype(np.int64)
-    u, v = arr[..., 0], arr[..., 1]
-    if np.any((u < 0) | (u >= W) | (v < 0) | (v >= H)):
-        raise ValueError(f"{name}: pixels must lie inside the {W}x{H} image")
-    return arr
-
-
 # --- §4.3 + §4.5 the entry point -----------------------------------------------------------------
-
-
-def _check_match_inputs(X11: Any, X21: Any, D11: Any, D21: Any, idx_init: Any) -> tuple:
-    """Shape checks of :func:`match` (shared with the fast twin): returns the four inputs as
-    (B, H, W, C) arrays (not converted), ``idx_init`` as (B, N) int64 or None, and the flag."""
-    X1, batched = _image_batch(X11, "X11", 3)
-    X2, batched2 = _image_batch(X21, "X21", 3)
-    if X2.shape != X1.shape or batched2 != batched:
-        raise ValueError(f"X21: expected the shape of X11 {np.shape(X11)}, got {np.shape(X21)}")
-    D1, b1 = _image_batch(D11, "D11", None)
-    D2, b2 = _image_batch(D21, "D21", None)
-    if D1.shape[:-1] != X1.shape[:-1] or b1 != batched:
-        raise ValueError(f"D11: expected shape {(*np.shape(X11)[:-1], 'F')}, got {np.shape(D11)}")
-    if D2.shape != D1.shape or b2 != batched:
-        raise ValueError(f"D21: expected the shape of D11 {np.shape(D11)}, got {np.shape(D21)}")
-    B, H, W, _ = X1.shape
-    if idx_init is None:
-        return X1, X2, D1, D2, None, batched
-    idx = np.asarray(idx_init)
-    if idx.size and not np.issubdtype(idx.dtype, np.integer):
-        raise ValueError(f"idx_init: expected integer indices, got dtype {idx.dtype}")
-    if idx.shape != ((B, H * W) if batched else (H * W,)):
-        raise ValueError(f"idx_init: expected shape (B, N) or (N,), N={H * W}, got {idx.shape}")
-    idx = np.ascontiguousarray(idx, dtype=np.int64).reshape(B, H * W)
-    if idx.size and (idx.min() < 0 or idx.max() >= H * W):
-        raise ValueError(f"idx_init: indices must lie in [0, {H * W})")
-    return X1, X2, D1, D2, idx, batched
 
 
 def _initial_pixels(idx_init: IntArray | None, B: int, H: int, W: int) -> FloatArray:
@@ -472,7 +343,7 @@ def match(
             ``u + W v`` of its match in image 1.
         valid: (N,) or (B, N) bool. Zero or non-finite points (own or matched) are invalid.
     """
-    X1, X2, D1, D2, idx0, batched = _check_match_inputs(X11, X21, D11, D21, idx_init)
+    X1, X2, D1, D2, idx0, batched = check_match_inputs(X11, X21, D11, D21, idx_init)
     X1, X2 = _points(X1, "X11"), _points(X2, "X21")
     D1, D2 = as_float_array(D1, "D11"), as_float_array(D2, "D21")
     B, H, W, F = D1.shape
