@@ -6,6 +6,9 @@
   together and Taichi is re-initialised rarely; ``fast`` (function scope) re-asserts that precision
   before each test, because other tests may have switched it.
 * ``fast64`` pins float64 for tests that only make sense at full precision.
+* ``MSLAM_FAST_ARCH`` (``cpu`` by default, or ``cuda``) is the Taichi backend of those two
+  fixtures: ``MSLAM_FAST_ARCH=cuda pytest tests/parity`` runs the parity suite on a GPU. With
+  ``cuda`` and no GPU the fixtures raise (``mslam_fast.init`` never falls back to the CPU).
 """
 
 from __future__ import annotations
@@ -33,6 +36,9 @@ settings.register_profile(
 )
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 
+#: Taichi backend of the ``fast`` and ``fast64`` fixtures.
+FAST_ARCH = os.environ.get("MSLAM_FAST_ARCH", "cpu")
+
 #: The shared data folder beside the checkout (real sequences, BA problems, trajectories).
 SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
@@ -53,17 +59,17 @@ def fp(request: pytest.FixtureRequest) -> str:
 
 @pytest.fixture
 def fast(fp: str) -> str:
-    """Initialise mslam_fast on the CPU at precision ``fp`` (idempotent) and return ``fp``."""
+    """Initialise mslam_fast on ``FAST_ARCH`` at precision ``fp`` (idempotent); return ``fp``."""
     import mslam_fast
 
-    mslam_fast.init("cpu", fp)
+    mslam_fast.init(FAST_ARCH, fp)
     return fp
 
 
 @pytest.fixture
 def fast64() -> str:
-    """Initialise mslam_fast on the CPU in float64."""
+    """Initialise mslam_fast on ``FAST_ARCH`` in float64."""
     import mslam_fast
 
-    mslam_fast.init("cpu", "f64")
+    mslam_fast.init(FAST_ARCH, "f64")
     return "f64"

@@ -248,7 +248,8 @@ def _scratch(B: int, H: int, W: int, F: int, N: int, pad: int) -> tuple[Array, A
     """Zeroed runtime-type scratch: image-1 descriptors with a border of ``pad`` zero pixels,
     as rows ``(B·(H + 2 pad)·(W + 2 pad), Fp)``, and target rows ``(B·N, Fp)``; F zero-padded to
     a multiple of 8 (one AVX register of f32) for the vectorised dot products (24 stays 24;
-    padding to 32 measured ~10-20 % slower)."""
+    padding to 32 measured ~10-20 % slower). (Keeping these arrays between calls of one shape
+    was measured: no gain above the noise, so they are fresh each call.)"""
     Fp = -(-F // _PAD) * _PAD
     dt = ensure_init().dtype
     return np.zeros((B * (H + 2 * pad) * (W + 2 * pad), Fp), dt), np.zeros((B * N, Fp), dt)
@@ -328,16 +329,16 @@ def refine_matches(
     return out if batched else out[0]
 
 
-def match(
-    X11: Any,
-    X21: Any,
-    D11: Any,
-    D21: Any,
-    idx_init: Any = None,
-    cfg: MatchingConfig = MatchingConfig(),  # noqa: B008 (frozen, immutable)
-) -> tuple[Array, Array]:
-    """Taichi twin of ``mslam_ref.matching.match`` (one fused kernel: rays, gradients, LM,
-    truncation, distance test, refinement)."""
+def _match_args(
+    X11: Any, X21: Any, D11: Any, D21: Any, idx_init: Any, cfg: MatchingConfig
+) -> tuple[tuple[Any, ...], bool]:
+    """Checked and converted arguments of ``_match_k`` (host arrays; ``idx`` and ``valid`` at
+    positions 9 and 10 are its outputs) and whether the inputs had a batch axis.
+
+    Split from :func:`match` so that ``benchmarks/bench_matching.py`` can time the kernel alone
+    on copies held in ``ti.ndarray``s (on the GPU for CUDA: the way upstream's figure is
+    measured).
+    """
     X1, X2, D1, D2, idx0, batched = check_match_inputs(X11, X21, D11, D21, idx_init)
     B, H, W, F = D1.shape
     N = H * W
@@ -351,27 +352,40 @@ def match(
     else:  # no refinement: one-row stand-ins, so the kernel's copy loops are trivial
         D1 = D2 = np.zeros((1, F), X1.dtype)
         D1p, D2p = _scratch(1, 1, 1, F, 1, 0)
-    idx = np.empty((B, N), dtype=np.int64)
-    valid = np.empty((B, N), dtype=np.uint8)
-    if B > 0:
-        RG = np.empty((B, H, W, 9), dtype=X1.dtype)
-        _match_k(
-            X1,
-            X2,
-            D1,
-            D2,
-            D1p,
-            D2p,
-            idx0,
-            int(idx_init is not None),
-            RG,
-            idx,
-            valid,
-            int(cfg.max_iter),
-            float(cfg.lambda_init),
-            float(cfg.convergence_thresh),
-            float(cfg.dist_thresh),
-            int(cfg.radius),
-            int(cfg.dilation_max),
-        )
+    args = (
+        X1,
+        X2,
+        D1,
+        D2,
+        D1p,
+        D2p,
+        idx0,
+        int(idx_init is not None),
+        np.empty((B, H, W, 9), dtype=X1.dtype),  # RG scratch
+        np.empty((B, N), dtype=np.int64),  # idx (output)
+        np.empty((B, N), dtype=np.uint8),  # valid (output)
+        int(cfg.max_iter),
+        float(cfg.lambda_init),
+        float(cfg.convergence_thresh),
+        float(cfg.dist_thresh),
+        int(cfg.radius),
+        int(cfg.dilation_max),
+    )
+    return args, batched
+
+
+def match(
+    X11: Any,
+    X21: Any,
+    D11: Any,
+    D21: Any,
+    idx_init: Any = None,
+    cfg: MatchingConfig = MatchingConfig(),  # noqa: B008 (frozen, immutable)
+) -> tuple[Array, Array]:
+    """Taichi twin of ``mslam_ref.matching.match`` (one fused kernel: rays, gradients, LM,
+    truncation, distance test, refinement)."""
+    args, batched = _match_args(X11, X21, D11, D21, idx_init, cfg)
+    idx, valid = args[9], args[10]
+    if idx.shape[0] > 0:
+        _match_k(*args)
     return (idx, _flags(valid)) if batched else (idx[0], _flags(valid[0]))

@@ -218,3 +218,26 @@ def test_fast_rejects_bad_inputs_like_reference(fast: str) -> None:
                 mod.match(*args, **kw)
     with pytest.raises(ValueError, match="p1"):
         fm.refine_matches(D11, D21.reshape(-1, 24), np.full((16 * 12, 2), 99))
+
+
+@pytest.mark.gpu
+@pytest.mark.parametrize("fp", ["f64", "f32"])
+def test_match_parity_on_cuda(fp: str) -> None:
+    """``match`` on Taichi's CUDA backend against the reference (runs only where a GPU is)."""
+    import shutil
+
+    import mslam_fast
+    from mslam_fast import matching as fm
+
+    if shutil.which("nvidia-smi") is None:
+        pytest.skip("no GPU here")
+    try:
+        mslam_fast.init("cuda", fp)
+        for name, (X11, X21, D11, D21) in PAIRS.items():
+            for cfg in (NO_REFINE, ref.MatchingConfig()):
+                i_r, v_r = ref.match(X11, X21, D11, D21, cfg=cfg)
+                i_f, v_f = fm.match(X11, X21, D11, D21, cfg=cfg)
+                _assert_share(i_f, i_r, fp, f"{name} idx on CUDA, radius {cfg.radius}")
+                _assert_share(v_f, v_r, fp, f"{name} valid on CUDA, radius {cfg.radius}")
+    finally:
+        mslam_fast.init("cpu", "f64")
