@@ -1,8 +1,9 @@
 """Taichi twin of ``mslam_ref.matching`` — same names, parameters and shapes; see there for the maths.
 
-Parallel axis: target pixels n of image 2, no reductions; the LM runs ``LANES`` = 4 pixels per
-thread in lockstep (``ti.ndrange(B, ceil(N / LANES))``: independent dependency chains for the
-out-of-order core), the refinement one pixel per thread (``ti.ndrange(B, N)``).
+Parallel axis: target pixels n of image 2, no reductions; on the CPU the LM runs
+``LANES_CPU`` = 4 pixels per thread in lockstep (``ti.ndrange(B, ceil(N / 4))``: independent
+dependency chains for the out-of-order core), on CUDA one pixel per thread; the refinement
+runs one pixel per thread (``ti.ndrange(B, N)``).
 ``match`` runs everything in one kernel call, so nothing goes back to the host between stages:
 loop 1 writes the unit rays into a (B, H, W, 9) scratch image, loop 2 their Scharr gradients,
 loops 3 and 4 cast the descriptors to the runtime type into zeroed scratch rows (image 1 with a
@@ -40,7 +41,15 @@ __all__ = [
 
 Array = np.ndarray[Any, Any]
 nd = ti.types.ndarray()
-LANES = 4  # pixels per thread in the LM (lockstep, see K.lm_lanes)
+LANES_CPU = 4  # pixels per CPU thread in the LM (lockstep, see K.lm_lanes); 1 on CUDA
+
+
+def _lanes() -> int:
+    """Pixels per thread of the LM: ``LANES_CPU`` on the CPU, 1 on CUDA (one thread per pixel,
+    like upstream's kernel: a GPU hides latency with more threads, not with lanes)."""
+    return LANES_CPU if ensure_init().arch == "cpu" else 1
+
+
 _PAD = 8  # descriptor padding of F to a multiple of 8 (see _scratch)
 
 
@@ -81,20 +90,28 @@ def _targets(X21: ti.template(), b, g, N, L: ti.template()):
 
 @ti.kernel
 def _iter_proj_k(
-    RG: nd, X21: nd, P0: nd, P: nd, conv: nd, max_iter: ti.i32, lam0: float, thresh: float
+    RG: nd,
+    X21: nd,
+    P0: nd,
+    P: nd,
+    conv: nd,
+    max_iter: ti.i32,
+    lam0: float,
+    thresh: float,
+    lanes: ti.template(),
 ):
     H, W = RG.shape[1], RG.shape[2]
     N = X21.shape[1]
-    for b, g in ti.ndrange(X21.shape[0], (N + LANES - 1) // LANES):
-        T = _targets(X21, b, g, N, LANES)
-        u0 = ti.Vector([0.0] * LANES)
-        v0 = ti.Vector([0.0] * LANES)
-        for l in ti.static(range(LANES)):
-            n = ti.min(g * LANES + l, N - 1)
+    for b, g in ti.ndrange(X21.shape[0], (N + lanes - 1) // lanes):
+        T = _targets(X21, b, g, N, lanes)
+        u0 = ti.Vector([0.0] * lanes)
+        v0 = ti.Vector([0.0] * lanes)
+        for l in ti.static(range(lanes)):
+            n = ti.min(g * lanes + l, N - 1)
             u0[l], v0[l] = P0[b, n, 0], P0[b, n, 1]
-        u, v, c = K.lm_lanes(RG, b, T, u0, v0, H, W, max_iter, lam0, thresh, LANES)
-        for l in ti.static(range(LANES)):
-            n = g * LANES + l
+        u, v, c = K.lm_lanes(RG, b, T, u0, v0, H, W, max_iter, lam0, thresh, lanes)
+        for l in ti.static(range(lanes)):
+            n = g * lanes + l
             if n < N:
                 P[b, n, 0] = u[l]
                 P[b, n, 1] = v[l]
@@ -159,24 +176,25 @@ def _match_k(
     dist_thresh: float,
     radius: ti.template(),
     dmax: ti.i32,
+    lanes: ti.template(),
 ):
     _ray_image(X11, RG)
     H, W = X11.shape[1], X11.shape[2]
     K.pad_descriptors(D11, D1p, H, W, radius * dmax)  # top level (parallel): no `if radius > 0`
     _copy_rows(D21, D2p)
     N = H * W
-    for b, g in ti.ndrange(X21.shape[0], (N + LANES - 1) // LANES):
-        T = _targets(X21, b, g, N, LANES)
-        u0 = ti.Vector([0.0] * LANES)
-        v0 = ti.Vector([0.0] * LANES)
-        for l in ti.static(range(LANES)):
-            i0 = ti.min(g * LANES + l, N - 1)
+    for b, g in ti.ndrange(X21.shape[0], (N + lanes - 1) // lanes):
+        T = _targets(X21, b, g, N, lanes)
+        u0 = ti.Vector([0.0] * lanes)
+        v0 = ti.Vector([0.0] * lanes)
+        for l in ti.static(range(lanes)):
+            i0 = ti.min(g * lanes + l, N - 1)
             if use_init != 0:
                 i0 = ti.cast(idx0[b, i0], ti.i32)
             u0[l], v0[l] = ti.cast(i0 % W, float), ti.cast(i0 // W, float)
-        u_f, v_f, conv = K.lm_lanes(RG, b, T, u0, v0, H, W, max_iter, lam0, thresh, LANES)
-        for l in ti.static(range(LANES)):
-            n = g * LANES + l
+        u_f, v_f, conv = K.lm_lanes(RG, b, T, u0, v0, H, W, max_iter, lam0, thresh, lanes)
+        for l in ti.static(range(lanes)):
+            n = g * lanes + l
             if n < N:
                 u, v = ti.cast(u_f[l], ti.i32), ti.cast(v_f[l], ti.i32)  # truncation (>= 1)
                 X2 = ti.Vector([X21[b, n, 0], X21[b, n, 1], X21[b, n, 2]])
@@ -275,7 +293,7 @@ def iter_proj(
     p_init: Any,
     cfg: MatchingConfig = MatchingConfig(),  # noqa: B008 (frozen, immutable)
 ) -> tuple[Array, Array]:
-    """Taichi twin of ``mslam_ref.matching.iter_proj`` (``LANES`` target pixels per thread)."""
+    """Taichi twin of ``mslam_ref.matching.iter_proj`` (``_lanes()`` target pixels per thread)."""
     RG, batched = image_batch(rays_with_grad, "rays_with_grad", 9)
     RG = _float(RG, "rays_with_grad")
     B = RG.shape[0]
@@ -301,6 +319,7 @@ def iter_proj(
             int(cfg.max_iter),
             float(cfg.lambda_init),
             float(cfg.convergence_thresh),
+            _lanes(),
         )
     return (P, _flags(conv)) if batched else (P[0], _flags(conv[0]))
 
@@ -370,6 +389,7 @@ def _match_args(
         float(cfg.dist_thresh),
         int(cfg.radius),
         int(cfg.dilation_max),
+        _lanes(),
     )
     return args, batched
 
