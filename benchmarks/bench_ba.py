@@ -34,7 +34,8 @@ sys.path[:0] = [str(ROOT / "reference"), str(ROOT / "fast"), str(ROOT / "benchma
 
 from _results import table, write_section  # noqa: E402
 
-from mslam_ref.ba import cameras, io, lm, synthetic  # noqa: E402
+from mslam_ref.ba import cameras, lm, synthetic  # noqa: E402
+from mslam import bal as io
 
 DATA = ROOT.parent / "shared" / "data" / "ba" / "problem-49-7776-pre.txt"
 CERES_NATIVE = "0.7-1.1 s, 32 it., 13344.32 (native Ceres SPARSE_SCHUR, measured by the lead)"

@@ -25,11 +25,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from _results import table, write_section
 
-from mslam_ref.config import load_config
-from mslam_ref.kernels import load_kernels
-from mslam_ref.system import open_source, run_slam
-from mslam_ref.system.outputs import evaluate_run
-from mslam_ref.system.sources import DEFAULT_SYNTHETIC
+from mslam.config import load_config
+from mslam.kernels import load_kernels
+from mslam.system import open_source, run_slam
+from mslam.system.outputs import evaluate_run
+from mslam.system.sources import DEFAULT_SYNTHETIC
 
 SEVEN_SCENES = (
     Path(__file__).resolve().parents[2] / "shared/data/seq/7scenes_redkitchen_f000000-000149"
@@ -74,8 +74,8 @@ def baseline_figures(seq, slam_stamps):
     """OpenCV RGB-D odometry ATE on all frames and on the frames the SLAM run has poses for."""
     import numpy as np
 
-    from mslam_ref import evaluate
-    from mslam_ref.baselines import rgbd_odometry
+    from mslam import evaluate
+    from mslam.baselines import rgbd_odometry
 
     try:
         res = rgbd_odometry(seq)

@@ -33,10 +33,11 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from mslam_ref import sim3, so3
-from mslam_ref.pointmap import backproject, camera_rays, intrinsics_after_resize, resize_img
-from mslam_ref.priors import check_prediction
-from mslam_ref.priors.synthetic import SyntheticPrior, SyntheticPriorConfig
-from mslam_ref.synthetic import make_sequence
+from mslam.datasets.images import resize_img
+from mslam_ref.pointmap import backproject, camera_rays, intrinsics_after_resize
+from mslam.priors import check_prediction
+from mslam.priors.synthetic import SyntheticPrior, SyntheticPriorConfig
+from mslam.datasets.synthetic import make_sequence
 
 FIGS = Path(tempfile.mkdtemp(prefix="mslam_tutorial01_"))
 
@@ -152,8 +153,8 @@ if not DATA.is_dir():
     DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 SEVEN = DATA / "seq" / "7scenes_redkitchen_f000000-000149"
 if SEVEN.is_dir():
-    from mslam_ref.datasets import load_sequence
-    from mslam_ref.priors.rgbd import RGBDPrior
+    from mslam.datasets import load_sequence
+    from mslam.priors.rgbd import RGBDPrior
 
     real = load_sequence(SEVEN, size=(160, 120))
     rprior = RGBDPrior(real)

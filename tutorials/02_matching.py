@@ -36,8 +36,8 @@ import numpy as np
 
 from mslam_ref import matching, sim3
 from mslam_ref.pointmap import backproject, project
-from mslam_ref.priors.descriptors import patch_descriptors
-from mslam_ref.synthetic import make_sequence
+from mslam.priors.descriptors import patch_descriptors
+from mslam.datasets.synthetic import make_sequence
 
 np.set_printoptions(precision=4, suppress=True)
 

@@ -13,7 +13,7 @@ and ``g_j = M^T g_loc``. Since ``J_i = -J_j`` exactly, ``H_ii = H_jj``,
 sums in float64. Both pixel loops are branch-free and vectorised over pixels as in
 ``mslam_fast.tracking`` (ray rows in closed form, X as a flat ``(3·n_kf·N,)`` array).
 
-``solve`` is the reference Gauss-Newton driver (``mslam_ref.backend._solve_with``: sparse
+``solve`` is the reference Gauss-Newton driver (``mslam_ref.backend.solve_with``: sparse
 assembly, Cholesky, retraction on the host) with this linearisation.
 """
 
@@ -25,26 +25,12 @@ import taichi as ti
 from mslam_fast._kernels import sim3 as S
 from mslam_fast._kernels import tracking as KT
 from mslam_fast._runtime import ensure_init
-from mslam_ref import backend as _ref
-from mslam_ref import calib as _calib
+from mslam_ref import backend as ref_backend
 from mslam_ref import sim3 as _sim3
-from mslam_ref.backend import (
-    BackendConfig,
-    BackendInfo,
-    assemble_system,
-    block_residual_and_jacobian,
-    directed_blocks,
-)
+from mslam_ref.backend import BackendConfig, BackendInfo
+from mslam_ref.pointmap import check_K
 
-__all__ = [
-    "BackendConfig",
-    "BackendInfo",
-    "assemble_system",
-    "block_residual_and_jacobian",
-    "directed_blocks",
-    "linearize",
-    "solve",
-]
+__all__ = ["linearize", "linearize_with_cost", "solve"]
 
 Array = np.ndarray[Any, Any]
 nd = ti.types.ndarray()
@@ -145,7 +131,7 @@ def _params(cfg: BackendConfig, K: Array | None, H: int, W: int) -> Array:
     )
 
 
-def _linearize_with_cost(
+def linearize_with_cost(
     T_WC: Any,
     X: Any,
     C: Any,
@@ -157,12 +143,12 @@ def _linearize_with_cost(
     cfg: BackendConfig,
     K: Any,
 ) -> tuple[Array, Array, float]:
-    """Kernel version of ``mslam_ref.backend._linearize_with_cost``. The ray constraint of
+    """Taichi twin of ``mslam_ref.backend.linearize_with_cost``. The ray constraint of
     the calibrated mode is applied inside the kernel (idempotent), not on the host."""
-    T_WC, X, C, ii, jj, idx, valid, Q, _ = _ref._check_graph(
+    T_WC, X, C, ii, jj, idx, valid, Q, _ = ref_backend.check_graph(
         T_WC, X, C, ii, jj, idx, valid, Q, None
     )
-    K = None if K is None else _calib.check_K(K)
+    K = None if K is None else check_K(K)
     dtype = ensure_init().dtype
     n_kf, H, W = X.shape[:3]
     D, N = len(ii), H * W
@@ -211,7 +197,7 @@ def linearize(
     K: Any = None,
 ) -> tuple[Array, Array]:
     """Taichi twin of ``mslam_ref.backend.linearize`` (Hs, gs in float64)."""
-    Hs, gs, _ = _linearize_with_cost(T_WC, X, C, ii, jj, idx, valid, Q, cfg, K)
+    Hs, gs, _ = linearize_with_cost(T_WC, X, C, ii, jj, idx, valid, Q, cfg, K)
     return Hs, gs
 
 
@@ -228,4 +214,4 @@ def solve(
     K: Any = None,
 ) -> tuple[Array, BackendInfo]:
     """Taichi twin of ``mslam_ref.backend.solve``: the reference driver, this linearize."""
-    return _ref._solve_with(_linearize_with_cost, T_WC, X, C, ii, jj, idx, valid, Q, cfg, K)
+    return ref_backend.solve_with(linearize_with_cost, T_WC, X, C, ii, jj, idx, valid, Q, cfg, K)

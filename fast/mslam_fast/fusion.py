@@ -5,7 +5,7 @@ maths.
 ``indep_conf``) run as one parallel loop over pixels (no reduction); ``recent``, ``first`` and
 ``best_score`` only copy whole arrays (and take a median), so they stay on the host. Arrays of
 the returned state are in the runtime float type. Config, state, ``init_pointmap`` and
-``average_confidence`` are the reference's.
+``average_confidence`` have no kernel: use ``mslam_ref.fusion``'s.
 """
 
 from typing import Any
@@ -15,23 +15,10 @@ import taichi as ti
 
 from mslam_fast._kernels import fusion as KF
 from mslam_fast._runtime import ensure_init
-from mslam_ref import fusion as _ref
-from mslam_ref.fusion import (
-    FILTERING_MODES,
-    FusionConfig,
-    PointmapState,
-    average_confidence,
-    init_pointmap,
-)
+from mslam_ref import fusion as ref_fusion
+from mslam_ref.fusion import FusionConfig, PointmapState
 
-__all__ = [
-    "FILTERING_MODES",
-    "FusionConfig",
-    "PointmapState",
-    "average_confidence",
-    "init_pointmap",
-    "update_pointmap",
-]
+__all__ = ["update_pointmap"]
 
 Array = np.ndarray[Any, Any]
 nd = ti.types.ndarray()
@@ -71,8 +58,8 @@ def update_pointmap(
     """Taichi twin of ``mslam_ref.fusion.update_pointmap``."""
     mode = cfg.filtering_mode
     if state.N == 0 or mode not in _KERNEL_MODES:
-        return _ref.update_pointmap(state, X, C, cfg)
-    X, C = _ref._check_XC(X, C)
+        return ref_fusion.update_pointmap(state, X, C, cfg)
+    X, C = ref_fusion.check_pointmap(X, C)
     if X.shape != state.X_canon.shape:
         raise ValueError(f"X: expected shape {state.X_canon.shape}, got {X.shape}")
     dtype = ensure_init().dtype

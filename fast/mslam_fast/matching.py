@@ -32,7 +32,6 @@ from mslam_ref.matching import MatchingConfig
 from mslam_ref.matching_inputs import check_match_inputs, image_batch, int_pixels
 
 __all__ = [
-    "MatchingConfig",
     "iter_proj",
     "match",
     "ray_image_and_gradients",

@@ -24,8 +24,6 @@ __all__ = [
     "adjoint",
     "adjoint_inv_apply",
     "exp",
-    "from_matrix",
-    "identity",
     "inv",
     "log",
     "mul",
@@ -133,9 +131,6 @@ def _T(T: Any, name: str = "T") -> Array:
     return np.ascontiguousarray(arr, dtype=ensure_init().dtype)
 
 
-def identity(batch_shape: tuple[int, ...] = ()) -> Array:
-    """Taichi twin of ``mslam_ref.sim3.identity`` (host-only: no kernel needed)."""
-    return _ref.identity(batch_shape).astype(ensure_init().dtype)
 
 
 def exp(xi: Any) -> Array:
@@ -193,9 +188,3 @@ def retract(T: Any, xi: Any) -> Array:
 def to_matrix(T: Any) -> Array:
     """Taichi twin of ``mslam_ref.sim3.to_matrix``."""
     return run_batch(_to_matrix_k, [(_T(T), 8)], (4, 4))
-
-
-def from_matrix(M: Any) -> Array:
-    """Taichi twin of ``mslam_ref.sim3.from_matrix`` (host-side: a 3x3 determinant and
-    Shepperd's quaternion extraction per element are not worth a kernel)."""
-    return _ref.from_matrix(M).astype(ensure_init().dtype)

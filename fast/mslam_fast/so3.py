@@ -22,7 +22,6 @@ __all__ = [
     "act",
     "conj",
     "exp",
-    "from_matrix",
     "hat",
     "log",
     "mul",
@@ -134,8 +133,3 @@ def act(q: Any, X: Any) -> Array:
 def to_matrix(q: Any) -> Array:
     """Taichi twin of ``mslam_ref.so3.to_matrix``."""
     return run_batch(_to_matrix_k, [(prepare(q, "q", 4), 4)], (3, 3))
-
-
-def from_matrix(R: Any) -> Array:
-    """Taichi twin of ``mslam_ref.so3.from_matrix`` (host-side, the reference's code)."""
-    return _ref.from_matrix(R).astype(ensure_init().dtype)

@@ -14,9 +14,10 @@ as flat ``(3N,)`` arrays (a compile-time stride), so LLVM vectorises it over pix
 8 f32 lanes; the reduction order within a chunk is then LLVM's). Calibrated mode is
 branch-free too (rows one by one, ``log`` by ``_kernels.tracking.log_pos``).
 
-``solve`` is the reference IRLS driver (``mslam_ref.tracking._solve_with``) with this
-``linearize``; inputs are validated and converted once, not per iteration. The frontend
-helpers (masks, match quality, keyframe test) are host code shared with the reference.
+``solve`` is the reference IRLS driver (``mslam_ref.tracking.solve_with``, which runs
+``mslam_ref.gauss_newton``) with this ``linearize``; inputs are validated and converted once,
+not per iteration. The frontend helpers (masks, match quality, keyframe test) have no kernel:
+use ``mslam_ref.tracking``'s.
 """
 
 from typing import Any
@@ -28,26 +29,10 @@ from mslam_fast._kernels import sim3 as S
 from mslam_fast._kernels import tracking as KT
 from mslam_fast._runtime import ensure_init
 from mslam_ref import sim3 as _sim3
-from mslam_ref import tracking as _ref
-from mslam_ref.tracking import (
-    TrackingConfig,
-    TrackingInfo,
-    match_fraction,
-    match_quality,
-    needs_new_keyframe,
-    tracking_masks,
-)
+from mslam_ref import tracking as ref_tracking
+from mslam_ref.tracking import TrackingConfig, TrackingInfo
 
-__all__ = [
-    "TrackingConfig",
-    "TrackingInfo",
-    "linearize",
-    "match_fraction",
-    "match_quality",
-    "needs_new_keyframe",
-    "solve",
-    "tracking_masks",
-]
+__all__ = ["linearize", "solve"]
 
 Array = np.ndarray[Any, Any]
 nd = ti.types.ndarray()
@@ -179,7 +164,7 @@ def linearize(
     K: Any = None,
 ) -> tuple[Array, Array, float]:
     """Taichi twin of ``mslam_ref.tracking.linearize`` (H, g, cost in float64)."""
-    X_f, X_k, Q, valid, K = _ref._check_problem(X_f, X_k, Q, valid, K)
+    X_f, X_k, Q, valid, K = ref_tracking.check_problem(X_f, X_k, Q, valid, K)
     T = _sim3.validate(T_CkCf, "T_CkCf")
     if T.shape != (8,):
         raise ValueError(f"T_CkCf: expected shape (8,), got {T.shape}")
@@ -196,7 +181,7 @@ def solve(
     K: Any = None,
 ) -> tuple[Array, TrackingInfo]:
     """Taichi twin of ``mslam_ref.tracking.solve``: the reference driver, this linearize."""
-    X_f, X_k, Q, valid, K = _ref._check_problem(X_f, X_k, Q, valid, K)
+    X_f, X_k, Q, valid, K = ref_tracking.check_problem(X_f, X_k, Q, valid, K)
     shape = X_k.shape
     lin = lambda T, Xf, Xk, Qp, vp, c, KK: _linearize_prepared(T, Xf, Xk, Qp, vp, c, KK, shape)
-    return _ref._solve_with(lin, *_prepared(X_f, X_k, Q, valid), T_CkCf_init, cfg, K)
+    return ref_tracking.solve_with(lin, *_prepared(X_f, X_k, Q, valid), T_CkCf_init, cfg, K)

@@ -19,8 +19,8 @@ In calibrated mode (K given) the pointmaps are constrained to their rays *inside
 idempotent, so a caller that already constrained them loses nothing.
 
 Public names, in reading order:
-    BackendConfig, BackendInfo, directed_blocks, block_residual_and_jacobian, linearize,
-    assemble_system, solve
+    BackendConfig, BackendInfo, directed_blocks, block_residual_and_jacobian, check_graph,
+    linearize_with_cost, linearize, assemble_system, solve, solve_with
 """
 
 from __future__ import annotations
@@ -36,15 +36,20 @@ import scipy.sparse.linalg
 
 from mslam_ref import calib, robust, sim3
 from mslam_ref.conventions import BoolArray, FloatArray, IntArray, as_float_array
+from mslam_ref.gauss_newton import gauss_newton
+from mslam_ref.pointmap import check_K
 
 __all__ = [
     "BackendConfig",
     "BackendInfo",
     "assemble_system",
     "block_residual_and_jacobian",
+    "check_graph",
     "directed_blocks",
     "linearize",
+    "linearize_with_cost",
     "solve",
+    "solve_with",
 ]
 
 #: Huber threshold of the backend (hard-coded in gn_kernels.cu).
@@ -207,12 +212,16 @@ def block_residual_and_jacobian(
     return e, -J_j, J_j, w
 
 
-def _check_graph(
+def check_graph(
     T_WC: Any, X: Any, C: Any, ii: Any, jj: Any, idx: Any, valid: Any, Q: Any, K: Any
 ) -> tuple[
     FloatArray, FloatArray, FloatArray, IntArray, IntArray, IntArray, BoolArray, FloatArray, Any
 ]:
-    """Validate linearize/solve inputs; returns arrays (X ray-constrained when K given)."""
+    """Validate the inputs of :func:`linearize` / :func:`solve` (shapes, index ranges, finiteness).
+
+    Returns:
+        the arrays as float64 / int64 / bool, X constrained to its rays when K is given.
+    """
     T_WC = sim3.validate(T_WC, "T_WC")
     X = as_float_array(X, "X", 3)
     if T_WC.ndim != 2 or X.ndim != 4 or len(X) != len(T_WC):
@@ -240,7 +249,7 @@ def _check_graph(
     if Q.shape != (D, n_pix):
         raise ValueError(f"Q: expected shape {(D, n_pix)}, got {Q.shape}")
     if K is not None:
-        K = calib.check_K(K)
+        K = check_K(K)
         X = calib.constrain_points_to_ray(X, K)
     return (
         T_WC,
@@ -255,7 +264,7 @@ def _check_graph(
     )
 
 
-def _linearize_with_cost(
+def linearize_with_cost(
     T_WC: Any,
     X: Any,
     C: Any,
@@ -267,8 +276,12 @@ def _linearize_with_cost(
     cfg: BackendConfig,
     K: Any,
 ) -> tuple[FloatArray, FloatArray, float]:
-    """:func:`linearize` plus the total robust cost ``1/2 sum W e^2`` (for the driver)."""
-    T_WC, X, C, ii, jj, idx, valid, Q, K = _check_graph(T_WC, X, C, ii, jj, idx, valid, Q, K)
+    """:func:`linearize` plus the total robust cost ``1/2 sum W e^2`` (what the driver needs).
+
+    Returns:
+        Hs: (D, 4, 7, 7); gs: (D, 2, 7); cost: float.
+    """
+    T_WC, X, C, ii, jj, idx, valid, Q, K = check_graph(T_WC, X, C, ii, jj, idx, valid, Q, K)
     D = len(ii)
     Hs, gs, cost = np.zeros((D, 4, 7, 7)), np.zeros((D, 2, 7)), 0.0
     for d in range(D):  # blocks (few), each vectorised over its N pixels
@@ -319,7 +332,7 @@ def linearize(
     Returns:
         Hs: (D, 4, 7, 7) ``[H_ii, H_ij, H_ji, H_jj]``; gs: (D, 2, 7) ``[g_i, g_j]``.
     """
-    Hs, gs, _ = _linearize_with_cost(T_WC, X, C, ii, jj, idx, valid, Q, cfg, K)
+    Hs, gs, _ = linearize_with_cost(T_WC, X, C, ii, jj, idx, valid, Q, cfg, K)
     return Hs, gs
 
 
@@ -375,7 +388,7 @@ def _factor_solve(A: scipy.sparse.csr_matrix, b: FloatArray) -> FloatArray | Non
 LinearizeFn = Callable[..., tuple[FloatArray, FloatArray, float]]
 
 
-def _solve_with(
+def solve_with(
     linearize_fn: LinearizeFn,
     T_WC: Any,
     X: Any,
@@ -388,33 +401,34 @@ def _solve_with(
     cfg: BackendConfig,
     K: Any,
 ) -> tuple[FloatArray, BackendInfo]:
-    """The Gauss-Newton driver shared by the reference and the Taichi ``solve``;
-    ``linearize_fn`` returns (Hs, gs, cost) like ``_linearize_with_cost``."""
-    T_WC, X, C, ii, jj, idx, valid, Q, K = _check_graph(T_WC, X, C, ii, jj, idx, valid, Q, K)
-    T = T_WC.copy()
+    """:func:`solve` with another linearisation (a kernel with :func:`linearize_with_cost`'s
+    signature returning ``(Hs, gs, cost)``), run by the shared driver
+    ``mslam_ref.gauss_newton``."""
+    T_WC, X, C, ii, jj, idx, valid, Q, K = check_graph(T_WC, X, C, ii, jj, idx, valid, Q, K)
     kf = np.unique(np.concatenate([ii, jj]))
     pin = int(cfg.pin)
     if len(kf) <= pin:
-        return T, BackendInfo(0, (), (), 0, tuple(int(k) for k in kf))
+        return T_WC.copy(), BackendInfo(0, (), (), 0, tuple(int(k) for k in kf))
     pos_i, pos_j = np.searchsorted(kf, ii) - pin, np.searchsorted(kf, jj) - pin
     n = len(kf) - pin
     free = kf[pin:]
-    costs, norms, failed = [], [], 0
-    for _ in range(int(cfg.max_iters)):
+
+    def step(T: FloatArray) -> tuple[FloatArray | None, float]:
         Hs, gs, cost = linearize_fn(T, X, C, ii, jj, idx, valid, Q, cfg, K)
         A, b = assemble_system(
             np.asarray(Hs, np.float64), np.asarray(gs, np.float64), pos_i, pos_j, n
         )
-        dx = _factor_solve(A, b)
-        if dx is None:
-            failed += 1
-            dx = np.zeros(7 * n)
+        return _factor_solve(A, b), cost
+
+    def retract(T: FloatArray, dx: FloatArray) -> FloatArray:
+        T = T.copy()
         T[free] = sim3.retract(T[free], dx.reshape(n, 7))
-        costs.append(float(cost))
-        norms.append(float(np.linalg.norm(dx)))
-        if norms[-1] < cfg.delta_norm:
-            break
-    return T, BackendInfo(len(costs), tuple(costs), tuple(norms), failed, tuple(int(k) for k in kf))
+        return T
+
+    stop = lambda old, cost, dx: float(np.linalg.norm(dx)) < cfg.delta_norm
+    T, trace = gauss_newton(T_WC.copy(), step, retract, stop, cfg.max_iters, np.zeros(7 * n))
+    keyframes = tuple(int(k) for k in kf)
+    return T, BackendInfo(trace.iterations, trace.costs, trace.step_norms, trace.failed, keyframes)
 
 
 def solve(
@@ -450,4 +464,4 @@ def solve(
     Returns:
         T_WC: (K, 8) updated poses; info: :class:`BackendInfo`.
     """
-    return _solve_with(_linearize_with_cost, T_WC, X, C, ii, jj, idx, valid, Q, cfg, K)
+    return solve_with(linearize_with_cost, T_WC, X, C, ii, jj, idx, valid, Q, cfg, K)

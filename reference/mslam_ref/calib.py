@@ -22,7 +22,8 @@ from typing import Any
 import numpy as np
 
 from mslam_ref import sim3
-from mslam_ref.conventions import BoolArray, FloatArray, as_float_array
+from mslam_ref.conventions import BoolArray, FloatArray, as_float_array, as_points
+from mslam_ref.pointmap import check_K
 
 __all__ = [
     "PIXEL_BORDER",
@@ -36,14 +37,6 @@ __all__ = [
 #: Upstream defaults of ``tracking.pixel_border`` / ``local_opt.pixel_border`` and ``depth_eps``.
 PIXEL_BORDER = -10
 Z_EPS = 1e-6
-
-
-def check_K(K: Any) -> FloatArray:
-    """Validate a (3, 3) pinhole intrinsics matrix (fx, fy > 0)."""
-    K = as_float_array(K, "K", (3, 3))
-    if K.ndim != 2 or K[0, 0] <= 0.0 or K[1, 1] <= 0.0:
-        raise ValueError("K: expected a (3, 3) intrinsics matrix with fx, fy > 0")
-    return K
 
 
 def constrain_points_to_ray(X: FloatArray, K: FloatArray) -> FloatArray:
@@ -123,13 +116,6 @@ def project_calib_and_jacobian(
     return pz, J, valid
 
 
-def _flat_points(X: Any, name: str, n: int | None = None) -> FloatArray:
-    X = as_float_array(X, name, 3).reshape(-1, 3)
-    if n is not None and len(X) != n:
-        raise ValueError(f"{name}: expected {n} points, got {len(X)}")
-    return X
-
-
 def calib_residual_and_jacobian(
     T_CkCf: FloatArray,
     X_f: FloatArray,
@@ -167,7 +153,7 @@ def calib_residual_and_jacobian(
     if X_k.ndim != 3:
         raise ValueError(f"X_k: calibrated residuals need the (H, W, 3) grid, got {X_k.shape}")
     H, W = X_k.shape[:2]
-    X_f = _flat_points(X_f, "X_f", H * W)
+    X_f = as_points(X_f, "X_f", H * W)
     border = PIXEL_BORDER if cfg is None else cfg.pixel_border
     z_eps = Z_EPS if cfg is None else cfg.depth_eps
     zk = X_k[..., 2].reshape(-1)
@@ -201,7 +187,7 @@ def point_residual_and_jacobian(
     Returns:
         r: (N, 3); J: (N, 3, 7).
     """
-    X_k = _flat_points(X_k, "X_k")
-    X_f = _flat_points(X_f, "X_f", len(X_k))
+    X_k = as_points(X_k, "X_k")
+    X_f = as_points(X_f, "X_f", len(X_k))
     P, dP = sim3.act_and_jacobian(T_CkCf, X_f)
     return X_k - P, -dP

@@ -55,6 +55,18 @@ def as_float_array(x: Any, name: str, trailing: int | tuple[int, ...] | None = N
     return arr
 
 
+def as_points(x: Any, name: str, n: int | None = None) -> FloatArray:
+    """A flat ``(N, 3)`` float64 view of points given as ``(..., 3)``, optionally checking N.
+
+    Raises:
+        ValueError: wrong trailing shape, non-finite values or (with ``n``) a wrong count.
+    """
+    X = as_float_array(x, name, 3).reshape(-1, 3)
+    if n is not None and len(X) != n:
+        raise ValueError(f"{name}: expected {n} points, got {len(X)}")
+    return X
+
+
 def pixel_to_lin(u: npt.ArrayLike, v: npt.ArrayLike, W: int) -> IntArray:
     """Linear pixel index ``n = u + W v`` (upstream matching.py::pixel_to_lin)."""
     return (np.asarray(u, dtype=np.int64) + W * np.asarray(v, dtype=np.int64)).astype(np.int64)

@@ -27,6 +27,7 @@ __all__ = [
     "FusionConfig",
     "PointmapState",
     "average_confidence",
+    "check_pointmap",
     "from_spherical",
     "init_pointmap",
     "to_spherical",
@@ -88,7 +89,8 @@ def _score(C: FloatArray, cfg: FusionConfig) -> float:
     return float(np.median(C) if cfg.filtering_score == "median" else np.mean(C))
 
 
-def _check_XC(X: Any, C: Any) -> tuple[FloatArray, FloatArray]:
+def check_pointmap(X: Any, C: Any) -> tuple[FloatArray, FloatArray]:
+    """Validate a pointmap ``X`` (..., 3) and its confidences ``C`` (...), C > 0; float64."""
     X = as_float_array(X, "X", 3)
     C = as_float_array(C, "C")
     if C.shape != X.shape[:-1]:
@@ -114,7 +116,7 @@ def init_pointmap(
     Returns:
         a new :class:`PointmapState` (copies of X and C).
     """
-    X, C = _check_XC(X, C)
+    X, C = check_pointmap(X, C)
     return PointmapState(X.copy(), C.copy(), 1, 1, _score(C, cfg))
 
 
@@ -162,7 +164,7 @@ def update_pointmap(
     Returns:
         a new :class:`PointmapState` (the input state is not modified).
     """
-    X, C = _check_XC(X, C)
+    X, C = check_pointmap(X, C)
     if state.N == 0:
         return init_pointmap(X, C, cfg)
     if X.shape != state.X_canon.shape:

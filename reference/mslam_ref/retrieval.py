@@ -21,7 +21,7 @@ ASMK, as upstream configures it (binary, no idf, selective kernel α = 3, thresh
 
 Codebook: upstream's codebook ships with the checkpoint and cannot be had. The system trains one
 at the first keyframe by seeded k-means on a sample of that keyframe's dense descriptors
-(``mslam_ref.system.retrieval_features``); because the stand-in descriptors are a fixed function
+(``mslam.system.retrieval_features``); because the stand-in descriptors are a fixed function
 of local image patches, words learned from one view of a scene quantise every other view of it
 consistently. The codebook must be large compared with the words one image hits (a few hundred),
 otherwise every image shares every word and unrelated places score like revisits; docs/

@@ -13,7 +13,8 @@ Sign convention (tracker.py): ``r = z - h(T)``, ``J = dr/dxi = -dh/dxi``, ``H = 
 
 Public names, in reading order:
     TrackingConfig, TrackingInfo, match_quality, tracking_masks, match_fraction,
-    ray_dist_residual_and_jacobian, linearize, solve, needs_new_keyframe
+    ray_dist_residual_and_jacobian, check_problem, linearize, solve, solve_with,
+    needs_new_keyframe
 """
 
 from __future__ import annotations
@@ -26,17 +27,21 @@ from typing import Any
 import numpy as np
 
 from mslam_ref import calib, robust, sim3
-from mslam_ref.conventions import BoolArray, FloatArray, IntArray, as_float_array
+from mslam_ref.conventions import BoolArray, FloatArray, IntArray, as_float_array, as_points
+from mslam_ref.gauss_newton import gauss_newton
+from mslam_ref.pointmap import check_K
 
 __all__ = [
     "TrackingConfig",
     "TrackingInfo",
+    "check_problem",
     "linearize",
     "match_fraction",
     "match_quality",
     "needs_new_keyframe",
     "ray_dist_residual_and_jacobian",
     "solve",
+    "solve_with",
     "tracking_masks",
 ]
 
@@ -248,8 +253,8 @@ def ray_dist_residual_and_jacobian(
     Returns:
         r: (N, 4); J: (N, 4, 7).
     """
-    X_k = calib._flat_points(X_k, "X_k")
-    X_f = calib._flat_points(X_f, "X_f", len(X_k))
+    X_k = as_points(X_k, "X_k")
+    X_f = as_points(X_f, "X_f", len(X_k))
     P, dP = sim3.act_and_jacobian(T_CkCf, X_f)
     psi_k, d_k = _ray_dist(X_k)
     psi, d = _ray_dist(P)
@@ -264,19 +269,23 @@ def ray_dist_residual_and_jacobian(
 # --- linearisation and the IRLS driver ----------------------------------------------------------
 
 
-def _check_problem(
+def check_problem(
     X_f: Any, X_k: Any, Q: Any, valid: Any, K: Any
 ) -> tuple[FloatArray, FloatArray, FloatArray, BoolArray, FloatArray | None]:
-    """Validate the inputs of linearize/solve; returns flat X_f, X_k as given, Q, valid, K."""
+    """Validate the inputs of :func:`linearize` / :func:`solve` (shapes, finiteness, counts).
+
+    Returns:
+        X_f (N, 3) flat; X_k as given; Q (N,); valid (N,) bool; K (3, 3) or None.
+    """
     X_k = as_float_array(X_k, "X_k", 3)
     if K is not None:
-        K = calib.check_K(K)
+        K = check_K(K)
         if X_k.ndim != 3:
             raise ValueError(f"X_k: calibrated tracking needs the (H, W, 3) grid, got {X_k.shape}")
     elif X_k.ndim not in (2, 3):
         raise ValueError(f"X_k: expected (N, 3) or (H, W, 3), got {X_k.shape}")
     n = X_k.size // 3
-    X_f = calib._flat_points(X_f, "X_f", n)
+    X_f = as_points(X_f, "X_f", n)
     Q = _flat_float(Q, "Q", n, nonneg=True)
     valid = _flat_bool(valid, "valid", n)
     return X_f, X_k, Q, valid, K
@@ -317,7 +326,7 @@ def linearize(
     Returns:
         H: (7, 7); g: (7,); cost: float.
     """
-    X_f, X_k, Q, valid, K = _check_problem(X_f, X_k, Q, valid, K)
+    X_f, X_k, Q, valid, K = check_problem(X_f, X_k, Q, valid, K)
     sq = np.sqrt(Q) * valid
     if K is None:
         r, J = ray_dist_residual_and_jacobian(T_CkCf, X_f, X_k)
@@ -348,7 +357,17 @@ def _converged(old_cost: float, cost: float, tau: FloatArray, cfg: TrackingConfi
     return rel < cfg.rel_error or float(np.linalg.norm(tau)) < cfg.delta_norm
 
 
-def _solve_with(
+def _cholesky_step(H: Any, g: Any) -> FloatArray | None:
+    """``tau = H^-1 g`` by Cholesky; None when H is not positive definite or tau not finite."""
+    try:
+        L = np.linalg.cholesky(np.asarray(H, dtype=np.float64))
+        tau = np.linalg.solve(L.T, np.linalg.solve(L, np.asarray(g, dtype=np.float64)))
+    except np.linalg.LinAlgError:
+        return None
+    return tau if np.all(np.isfinite(tau)) else None
+
+
+def solve_with(
     linearize_fn: LinearizeFn,
     X_f: Any,
     X_k: Any,
@@ -358,32 +377,23 @@ def _solve_with(
     cfg: TrackingConfig,
     K: Any,
 ) -> tuple[FloatArray, TrackingInfo]:
-    """The IRLS driver shared by the reference and the Taichi ``solve``: ``linearize_fn`` has
-    :func:`linearize`'s signature and returns (H, g, cost)."""
+    """:func:`solve` with another linearisation (a kernel with :func:`linearize`'s signature
+    returning ``(H, g, cost)``), run by the shared driver ``mslam_ref.gauss_newton``.
+    Inputs are used as given (call :func:`check_problem` first)."""
     T0 = sim3.validate(T_CkCf_init, "T_CkCf_init")
     if T0.shape != (8,):
         raise ValueError(f"T_CkCf_init: expected shape (8,), got {T0.shape}")
-    T = T0
-    old_cost = math.inf
-    costs: list[float] = []
-    converged = False
-    for _ in range(int(cfg.max_iters)):
+
+    def step(T: FloatArray) -> tuple[FloatArray | None, float]:
         H, g, cost = linearize_fn(T, X_f, X_k, Q, valid, cfg, K)
-        H = np.asarray(H, dtype=np.float64)
-        costs.append(float(cost))
-        try:
-            L = np.linalg.cholesky(H)
-            tau = np.linalg.solve(L.T, np.linalg.solve(L, np.asarray(g, dtype=np.float64)))
-        except np.linalg.LinAlgError:
-            tau = None
-        if tau is None or not np.all(np.isfinite(tau)):
-            return T0, TrackingInfo(len(costs), float(cost), False, True, tuple(costs))
-        T = sim3.retract(T, tau)
-        if _converged(old_cost, float(cost), tau, cfg):
-            converged = True
-            break
-        old_cost = float(cost)
-    return T, TrackingInfo(len(costs), costs[-1] if costs else 0.0, converged, False, tuple(costs))
+        return _cholesky_step(H, g), cost
+
+    T, trace = gauss_newton(
+        T0, step, sim3.retract, lambda old, c, tau: _converged(old, c, tau, cfg), cfg.max_iters
+    )
+    last = trace.costs[-1] if trace.costs else 0.0
+    info = TrackingInfo(trace.iterations, last, trace.converged, trace.aborted, trace.costs)
+    return T, info
 
 
 def solve(
@@ -416,5 +426,5 @@ def solve(
     Returns:
         T_CkCf: (8,) estimate; info: :class:`TrackingInfo`.
     """
-    X_f, X_k, Q, valid, K = _check_problem(X_f, X_k, Q, valid, K)
-    return _solve_with(linearize, X_f, X_k, Q, valid, T_CkCf_init, cfg, K)
+    X_f, X_k, Q, valid, K = check_problem(X_f, X_k, Q, valid, K)
+    return solve_with(linearize, X_f, X_k, Q, valid, T_CkCf_init, cfg, K)

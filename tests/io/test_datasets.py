@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from mslam_ref import sim3
-from mslam_ref.cli import main
-from mslam_ref.datasets import (
+from mslam.cli import main
+from mslam.datasets import (
     Calibration,
     Frame,
     load_sequence,
@@ -20,8 +20,8 @@ from mslam_ref.datasets import (
     subsample_sequence,
     write_tum,
 )
-from mslam_ref.datasets.io import encode_png
-from mslam_ref.synthetic import make_sequence
+from mslam.datasets.readers import encode_png
+from mslam.datasets.synthetic import make_sequence
 
 W, H = 64, 48
 
@@ -256,7 +256,7 @@ def test_synth_command_errors_leave_nothing(tmp_path: Path, monkeypatch, capsys)
     assert main(["synth", "loop", "--out", str(tmp_path / "full"), "--frames", "3"]) == 2
     assert (tmp_path / "full" / "x").read_text() == "keep"
 
-    import mslam_ref.datasets.tum as tum
+    import mslam.datasets.tum as tum
 
     calls = {"n": 0}
 

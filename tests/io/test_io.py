@@ -1,4 +1,4 @@
-"""Trajectory and point-cloud files (mslam_ref.io): round trips, malformed input, atomic writes."""
+"""Trajectory and point-cloud files (mslam.formats): round trips, malformed input, atomic writes."""
 
 from __future__ import annotations
 
@@ -10,7 +10,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from mslam_ref import io, sim3
+from mslam_ref import sim3
+from mslam import formats as io
 
 
 def _poses(rng: np.random.Generator, n: int, scale: bool = True) -> np.ndarray:
@@ -107,7 +108,7 @@ def test_atomic_write_leaves_no_partial_file(tmp_path, monkeypatch) -> None:
     io.write_tum(path, np.arange(4.0), T)
     before = path.read_bytes()
 
-    import mslam_ref.commands as commands
+    import mslam.commands as commands
 
     real_replace = commands.os.replace
 

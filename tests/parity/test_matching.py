@@ -22,7 +22,7 @@ from mslam_ref import matching as ref
 from mslam_ref import sim3
 from mslam_ref.pointmap import backproject
 
-HAVE_PRIOR = importlib.util.find_spec("mslam_ref.priors.synthetic") is not None
+HAVE_PRIOR = importlib.util.find_spec("mslam.priors.synthetic") is not None
 NO_REFINE = ref.MatchingConfig(radius=0)
 
 
@@ -46,8 +46,8 @@ def analytic_pair(W: int = 64, H: int = 48, seed: int = 0, F: int = 24):
 
 def prior_pair(W: int = 96, H: int = 72, j: int = 1, seed: int = 0):
     """A noisy MASt3R-like pair from the synthetic prior (depth noise, outliers, Sim(3) error)."""
-    from mslam_ref.priors.synthetic import SyntheticPrior, SyntheticPriorConfig
-    from mslam_ref.synthetic import make_sequence
+    from mslam.priors.synthetic import SyntheticPrior, SyntheticPriorConfig
+    from mslam.datasets.synthetic import make_sequence
 
     seq = make_sequence("loop", n_frames=40, width=W, height=H, seed=0)
     P = SyntheticPrior(seq, SyntheticPriorConfig(seed=seed)).pair(seq[0], seq[j])

@@ -8,7 +8,8 @@ from pathlib import Path
 import pytest
 
 from mslam_ref import cli
-from mslam_ref.ba import io, synthetic
+from mslam_ref.ba import synthetic
+from mslam import bal as io
 
 
 def test_cli_ba_json_and_out(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

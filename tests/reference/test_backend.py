@@ -13,7 +13,7 @@ from scipy.sparse.csgraph import connected_components
 from mslam_ref import backend, sim3
 from mslam_ref.backend import BackendConfig
 from mslam_ref.pointmap import backproject
-from mslam_ref.synthetic import make_sequence
+from mslam.datasets.synthetic import make_sequence
 
 N_KF, W, H = 10, 64, 48
 

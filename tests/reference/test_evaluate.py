@@ -1,4 +1,4 @@
-"""ATE (evo-compatible association + Umeyama) and reconstruction metrics (mslam_ref.evaluate).
+"""ATE (evo-compatible association + Umeyama) and reconstruction metrics (mslam.evaluate).
 
 The evo rows are the reference numbers of ../shared/data/traj/SOURCES.md (evo 1.38.1), rounded
 there to 6 decimals; every one is reproduced to 1e-6.
@@ -11,8 +11,9 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from mslam_ref import evaluate as ev
-from mslam_ref import io, sim3
+from mslam import evaluate as ev
+from mslam_ref import sim3
+from mslam import formats as io
 
 # (ground truth, estimate, align, matched, n_est, scale or None, rmse, mean, median, max)
 EVO_ROWS = [

@@ -8,19 +8,16 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from mslam.datasets.images import optimal_intrinsics, resize_img, undistort, undistort_maps
 from mslam_ref.pointmap import (
     backproject,
     camera_rays,
     intrinsics_after_resize,
     network_input,
     normalize_rays,
-    optimal_intrinsics,
     pixel_grid,
     project,
-    resize_img,
     scale_intrinsics,
-    undistort,
-    undistort_maps,
 )
 
 K = np.array([[50.0, 0, 31.5], [0, 52.0, 23.5], [0, 0, 1]])

@@ -9,10 +9,10 @@ import pytest
 
 from mslam_ref import sim3
 from mslam_ref.pointmap import backproject
-from mslam_ref.priors import DESC_DIM, PairPrediction, Prior, check_prediction
-from mslam_ref.priors.descriptors import patch_descriptors
-from mslam_ref.priors.synthetic import SyntheticPrior, SyntheticPriorConfig
-from mslam_ref.synthetic import make_sequence
+from mslam.priors import DESC_DIM, PairPrediction, Prior, check_prediction
+from mslam.priors.descriptors import patch_descriptors
+from mslam.priors.synthetic import SyntheticPrior, SyntheticPriorConfig
+from mslam.datasets.synthetic import make_sequence
 
 W, H = 64, 48
 
@@ -144,7 +144,7 @@ def test_check_prediction_rejects_bad_outputs(seq) -> None:
         PairPrediction(*(getattr(pred, k) for k in ("X_ii", "C_ii", "D_ii", "Q_ii")),
                        pred.X_ji[..., :2], pred.C_ji, pred.D_ji, pred.Q_ji)  # fmt: skip
     with pytest.raises(ValueError, match="depth"):
-        from mslam_ref.datasets import Frame
+        from mslam.datasets import Frame
 
         SyntheticPrior(seq).mono(Frame(0, 0.0, seq[0].rgb))
 
@@ -164,7 +164,7 @@ def _pose_error(T_est, T_gt) -> tuple[float, float]:
 
 
 def test_fill_depth() -> None:
-    from mslam_ref.priors.rgbd import fill_depth
+    from mslam.priors.rgbd import fill_depth
 
     z = np.array([[0.0, 2.0, 0.0], [0.0, 0.0, 3.0]])
     f, valid = fill_depth(z)
@@ -175,7 +175,7 @@ def test_fill_depth() -> None:
 
 
 def test_rgbd_prior_on_synthetic_frames() -> None:
-    from mslam_ref.priors.rgbd import RGBDPrior
+    from mslam.priors.rgbd import RGBDPrior
 
     seq = make_sequence("forward", n_frames=40, width=160, height=120, seed=0)
     prior = RGBDPrior(seq)
@@ -198,8 +198,8 @@ def test_rgbd_prior_on_synthetic_frames() -> None:
 
 def test_rgbd_prior_relative_pose_7scenes(shared_data) -> None:
     """Relative-pose error of features + depth + PnP on real frames (working size 160x120)."""
-    from mslam_ref.datasets import load_sequence
-    from mslam_ref.priors.rgbd import RGBDPrior
+    from mslam.datasets import load_sequence
+    from mslam.priors.rgbd import RGBDPrior
 
     seq = load_sequence(shared_data / "seq" / "7scenes_redkitchen_f000000-000149", size=(160, 120))
     prior = RGBDPrior(seq)
@@ -223,8 +223,8 @@ def test_rgbd_prior_rejects_degenerate_pnp(monkeypatch) -> None:
     """EPnP-in-RANSAC can return a pose 1e13 m away with "inliers"; it must not escape."""
     import cv2
 
-    from mslam_ref.priors import rgbd
-    from mslam_ref.priors.rgbd import FAILED_Q, RGBDPrior
+    from mslam.priors import rgbd
+    from mslam.priors.rgbd import FAILED_Q, RGBDPrior
 
     seq = make_sequence("forward", n_frames=40, width=160, height=120, seed=0)
     prior = RGBDPrior(seq)
@@ -260,8 +260,8 @@ def test_rgbd_prior_rejects_degenerate_pnp(monkeypatch) -> None:
 
 def test_rgbd_prior_7scenes_degenerate_pairs(shared_data) -> None:
     """Pairs where unguarded EPnP returned ~1e13 m: a sane pose or an honest failure."""
-    from mslam_ref.datasets import load_sequence
-    from mslam_ref.priors.rgbd import RGBDPrior
+    from mslam.datasets import load_sequence
+    from mslam.priors.rgbd import RGBDPrior
 
     seq = load_sequence(shared_data / "seq" / "7scenes_redkitchen_f000000-000149", size=(160, 120))
     prior = RGBDPrior(seq)
@@ -279,7 +279,7 @@ def test_rgbd_prior_7scenes_degenerate_pairs(shared_data) -> None:
 
 
 def test_mast3r_activations() -> None:
-    from mslam_ref.priors.mast3r import (
+    from mslam.priors.mast3r import (
         conf_activation,
         desc_activation,
         desc_conf_activation,
@@ -328,7 +328,7 @@ class _StandInMast3r:
 
 
 def test_mast3r_adapter_with_stand_in() -> None:
-    from mslam_ref.priors.mast3r import Mast3rConfig, Mast3rPrior, NumpyBackend
+    from mslam.priors.mast3r import Mast3rConfig, Mast3rPrior, NumpyBackend
 
     seq = make_sequence("loop", n_frames=4, width=W, height=H, seed=0)
     net = _StandInMast3r()
@@ -348,7 +348,7 @@ def test_mast3r_adapter_with_stand_in() -> None:
 
 
 def test_mast3r_missing_dependencies(tmp_path, monkeypatch) -> None:
-    from mslam_ref.priors.mast3r import CHECKPOINT_ENV, load_mast3r, load_prior
+    from mslam.priors.mast3r import CHECKPOINT_ENV, load_mast3r, load_prior
 
     with pytest.raises(FileNotFoundError, match=r"missing\.pth"):
         load_mast3r(tmp_path / "missing.pth")
@@ -370,7 +370,7 @@ def test_mast3r_missing_dependencies(tmp_path, monkeypatch) -> None:
 
 def test_mast3r_torch_backend() -> None:
     torch = pytest.importorskip("torch")
-    from mslam_ref.priors.mast3r import TorchBackend
+    from mslam.priors.mast3r import TorchBackend
 
     b = TorchBackend("cpu")
     t = b.to_tensor(np.ones((2, 3), np.float32))
@@ -382,7 +382,7 @@ def test_mast3r_adapter_with_stand_in_torch_module() -> None:
     """The adapter drives a torch ``nn.Module`` with upstream's interface (encoder on 16x16
     patches, two-view decoder, per-view heads returning raw outputs) through ``TorchBackend``."""
     torch = pytest.importorskip("torch")
-    from mslam_ref.priors.mast3r import Mast3rConfig, Mast3rPrior, TorchBackend
+    from mslam.priors.mast3r import Mast3rConfig, Mast3rPrior, TorchBackend
 
     class StandIn(torch.nn.Module):
         def __init__(self) -> None:

@@ -1,4 +1,4 @@
-"""``mslam eval`` run in-process through ``mslam_ref.cli.main``."""
+"""``mslam eval`` run in-process through ``mslam.cli.main``."""
 
 from __future__ import annotations
 
@@ -7,8 +7,9 @@ import json
 import numpy as np
 import pytest
 
-from mslam_ref import io, sim3
-from mslam_ref.cli import main
+from mslam_ref import sim3
+from mslam import formats as io
+from mslam.cli import main
 
 
 @pytest.fixture

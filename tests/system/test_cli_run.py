@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mslam_ref.cli import main
-from mslam_ref.io import read_ply, read_tum
+from mslam.cli import main
+from mslam.formats import read_ply, read_tum
 
 SOURCE = "synthetic:loop:14:64x48"
 OUTPUTS = (
@@ -95,11 +95,11 @@ def test_missing_calibration_fails_before_work(tmp_path, capsys, monkeypatch):
     # An image folder without intrinsics in calibrated mode: error before any frame is processed.
     import cv2
 
-    import mslam_ref.system as system_pkg
-    from mslam_ref import datasets
+    import mslam.system as system_pkg
+    from mslam import datasets
 
     if not hasattr(datasets, "load_sequence"):
-        pytest.skip("mslam_ref.datasets.load_sequence not available")
+        pytest.skip("mslam.datasets.load_sequence not available")
     img_dir = tmp_path / "imgs"
     img_dir.mkdir()
     for i in range(3):
@@ -124,7 +124,7 @@ def test_inconsistent_calibration_is_an_error(tmp_path, capsys):
 
 
 def test_ctrl_c_writes_what_exists(tmp_path, monkeypatch, fast64):
-    from mslam_ref.system import frontend
+    from mslam.system import frontend
 
     calls = {"n": 0}
     original = frontend.SlamSystem.process
@@ -145,7 +145,7 @@ def test_ctrl_c_writes_what_exists(tmp_path, monkeypatch, fast64):
 
 
 def test_unreadable_frames_are_skipped_and_counted(tmp_path, monkeypatch, fast64):
-    from mslam_ref.synthetic import SyntheticSequence
+    from mslam.datasets.synthetic import SyntheticSequence
 
     original = SyntheticSequence._load
 
@@ -166,7 +166,7 @@ def test_unreadable_frames_are_skipped_and_counted(tmp_path, monkeypatch, fast64
 
 
 def test_config_inherit_and_overrides(tmp_path):
-    from mslam_ref.config import load_config
+    from mslam.config import load_config
 
     child = tmp_path / "mine.yaml"
     child.write_text("inherit: calib\ntracking:\n  Q_conf: 2\nretrieval:\n  k: 5\n")

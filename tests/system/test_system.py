@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 from mslam_ref import sim3
-from mslam_ref.config import load_config
-from mslam_ref.graph import FactorGraph, KeyframeStore
-from mslam_ref.kernels import load_kernels
-from mslam_ref.system import Mode, open_source, run_slam
+from mslam.config import load_config
+from mslam.system.graph import FactorGraph, KeyframeStore
+from mslam.kernels import load_kernels
+from mslam.system import Mode, open_source, run_slam
 
 LOOP = "synthetic:loop:24:64x48"
 JUMP = "synthetic:jump:32:64x48"
@@ -69,7 +69,7 @@ def test_loop_closes_the_loop():
 
 
 def test_loop_trajectory_is_accurate():
-    from mslam_ref.system.outputs import evaluate_run
+    from mslam.system.outputs import evaluate_run
 
     src, system, _ = _run(LOOP)
     ev = evaluate_run(system, src.sequence)
@@ -90,7 +90,7 @@ def test_run_is_deterministic():
 
 def test_jump_relocalises_and_finishes():
     from mslam_ref.synthetic import jump_indices
-    from mslam_ref.system.outputs import evaluate_run
+    from mslam.system.outputs import evaluate_run
 
     src, system, _ = _run(JUMP)
     n = len(src.sequence)
@@ -155,7 +155,7 @@ def test_ref_run_never_imports_taichi():
 
     code = (
         "import sys\n"
-        "from mslam_ref.cli import main\n"
+        "from mslam.cli import main\n"
         "rc = main(['run', 'synthetic:loop:40:48x36', '--out', sys.argv[1], '--kernels', 'ref',"
         " '--max-frames', '4', '--quiet'])\n"
         "assert rc == 0, rc\n"

@@ -1,9 +1,10 @@
-"""Taichi kernel set of the bundle adjuster: ``cameras`` and ``schur`` twins, and ``lm``.
+"""Taichi twins of the bundle adjuster's hot pieces: ``cameras`` and ``schur``.
 
-Pass this package as ``kernels`` to ``mslam_ref.ba.lm.optimize`` (or call
-``mslam_fast.ba.lm.optimize``, which does so).
+The LM driver is the reference's (``mslam_ref.ba.lm.optimize``); it takes these modules
+through its ``kernels`` argument, which the application's kernel set provides
+(``mslam.kernels.load_kernels("fast").ba``).
 """
 
-from mslam_fast.ba import cameras, lm, schur
+from mslam_fast.ba import cameras, schur
 
-__all__ = ["cameras", "lm", "schur"]
+__all__ = ["cameras", "schur"]

@@ -12,12 +12,10 @@ import taichi as ti
 
 from mslam_fast._kernels import ba as K
 from mslam_fast._runtime import ensure_init, prepare
-from mslam_ref.ba.cameras import bal_retract_cameras
 
 __all__ = [
     "bal_linearize",
     "bal_residuals",
-    "bal_retract_cameras",
     "pinhole_linearize",
     "pinhole_residuals",
 ]

@@ -10,8 +10,8 @@ CSR list built once by ``build_structure``, so results are deterministic):
   (B d items).
 * ``back_substitute``: one point per item (P items).
 
-``build_structure``, ``dense_reduced`` and ``solve_reduced`` are the reference's host functions
-(the reduced Cholesky is a SciPy/LAPACK call), re-exported so the kernel set is complete.
+``build_structure``, ``dense_reduced`` and ``solve_reduced`` have no kernel (host set-up and a
+SciPy/LAPACK Cholesky): the LM driver calls ``mslam_ref.ba.schur``'s.
 """
 
 from typing import Any
@@ -21,23 +21,12 @@ import taichi as ti
 
 from mslam_fast._kernels import ba as K
 from mslam_fast._runtime import ensure_init, prepare
-from mslam_ref.ba.schur import (
-    DENSE_MAX,
-    BlockStructure,
-    build_structure,
-    dense_reduced,
-    solve_reduced,
-)
+from mslam_ref.ba.schur import BlockStructure
 
 __all__ = [
-    "DENSE_MAX",
-    "BlockStructure",
     "back_substitute",
-    "build_structure",
-    "dense_reduced",
     "normal_blocks",
     "schur_complement",
-    "solve_reduced",
 ]
 
 Array = np.ndarray[Any, Any]

@@ -1,0 +1,143 @@
+"""Spec §10.2–10.3 — the common part of every file-based loader.
+
+A :class:`FileSequence` holds per-frame file paths, timestamps and optional ground truth, and
+turns file *i* into a :class:`Frame`: read the image (and depth), undistort when the
+calibration has distortion (upstream: ``K_opt`` with a centred principal point,
+``initUndistortRectifyMap`` + ``remap``; depth with nearest-neighbour remapping), and
+optionally resize to a working size (RGB ``INTER_AREA``, depth nearest, ``K`` rescaled with the
+half-pixel rule of ``pointmap.scale_intrinsics``).
+
+Public names, in reading order:
+    FileSequence, apply_calibration
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from mslam_ref.conventions import FloatArray
+from mslam.datasets.frame import Frame, FrameSequence
+from mslam.datasets.readers import Calibration, read_calibration, read_depth, read_rgb
+from mslam.datasets.images import optimal_intrinsics, undistort_maps
+from mslam_ref.pointmap import scale_intrinsics
+
+__all__ = ["FileSequence", "apply_calibration"]
+
+
+def apply_calibration(calib: Calibration | str | Path | None) -> Calibration | None:
+    """A :class:`Calibration` from an object, a YAML path, or None."""
+    if calib is None or isinstance(calib, Calibration):
+        return calib
+    return read_calibration(calib)
+
+
+class FileSequence(FrameSequence):
+    """Frames stored as image files (plus optional depth files and ground truth).
+
+    Args:
+        name: sequence name.
+        rgb_paths: (N,) image files.
+        timestamps: (N,) seconds.
+        depth_paths: (N,) depth files or None.
+        T_WC: list of (8,) poses or None per frame (ground truth), or None.
+        calib: camera calibration or None (uncalibrated); its ``depth_scale`` wins over
+            ``depth_scale``.
+        depth_scale: raw depth units per metre.
+        size: optional working size ``(W, H)`` to resize frames to.
+        undistort: undistort images when the calibration has distortion (upstream does so
+            whenever a calibration is used).
+        center_principal_point: upstream's ``dataset.center_principle_point``.
+    """
+
+    def __init__(
+        self,
+        name: str,
+        rgb_paths: Sequence[Path],
+        timestamps: Sequence[float],
+        depth_paths: Sequence[Path] | None = None,
+        T_WC: Sequence[FloatArray | None] | None = None,
+        calib: Calibration | None = None,
+        depth_scale: float = 5000.0,
+        size: tuple[int, int] | None = None,
+        undistort: bool = True,
+        center_principal_point: bool = True,
+    ) -> None:
+        self.name = name
+        self.rgb_paths = [Path(p) for p in rgb_paths]
+        self.depth_paths = None if depth_paths is None else [Path(p) for p in depth_paths]
+        self.timestamps = np.asarray(timestamps, dtype=np.float64)
+        if len(self.rgb_paths) == 0:
+            raise ValueError(f"{name}: no frames found")
+        if len(self.timestamps) != len(self.rgb_paths):
+            raise ValueError(f"{name}: {len(self.rgb_paths)} images but {len(timestamps)} stamps")
+        self.has_depth = self.depth_paths is not None
+        self._gt = list(T_WC) if T_WC is not None else [None] * len(self.rgb_paths)
+        self.T_WC = (
+            np.stack(self._gt) if self._gt and all(t is not None for t in self._gt) else None
+        )
+        self.calib = calib
+        self.depth_scale = float(calib.depth_scale if calib and calib.depth_scale else depth_scale)
+        self.size = None if size is None else (int(size[0]), int(size[1]))
+        self._maps = None
+        self.K = None
+        self.distortion = None
+        if calib is not None:
+            self._setup_calibration(calib, undistort, center_principal_point)
+
+    def _setup_calibration(self, calib: Calibration, undistort: bool, center: bool) -> None:
+        K = calib.K
+        if calib.has_distortion and undistort:
+            dist = np.asarray(calib.distortion)
+            K_opt = optimal_intrinsics(K, dist, calib.width, calib.height, center)
+            self._maps = undistort_maps(K, dist, K_opt, calib.width, calib.height)
+            K = K_opt
+        elif calib.has_distortion:
+            self.distortion = np.asarray(calib.distortion)
+        if self.size is not None:
+            K = scale_intrinsics(K, (calib.width, calib.height), self.size)
+        self.K = K
+
+    def _process(self, i: int, rgb: np.ndarray, depth: FloatArray | None) -> Frame:
+        """Undistort / resize one frame and wrap it in a :class:`Frame`."""
+        src = self.rgb_paths[i] if i < len(self.rgb_paths) else Path(self.name)
+        if self.calib is not None and rgb.shape[:2] != (self.calib.height, self.calib.width):
+            raise ValueError(
+                f"{src}: image size {rgb.shape[1]}x{rgb.shape[0]} does not match the calibration "
+                f"{self.calib.width}x{self.calib.height}"
+            )
+        if self._maps is not None:
+            mx, my = self._maps
+            rgb = cv2.remap(rgb, mx, my, cv2.INTER_LINEAR)
+            if depth is not None:
+                depth = cv2.remap(depth, mx, my, cv2.INTER_NEAREST)
+        if self.size is not None and rgb.shape[:2] != (self.size[1], self.size[0]):
+            rgb = cv2.resize(rgb, self.size, interpolation=cv2.INTER_AREA)
+            if depth is not None:
+                depth = cv2.resize(depth, self.size, interpolation=cv2.INTER_NEAREST)
+        return Frame(i, float(self.timestamps[i]), np.ascontiguousarray(rgb), depth, self._gt[i])
+
+    def _load(self, i: int) -> Frame:
+        rgb = read_rgb(self.rgb_paths[i])
+        depth = None
+        if self.depth_paths is not None:
+            depth = read_depth(self.depth_paths[i], self.depth_scale, rgb.shape[:2])
+        return self._process(i, rgb, depth)
+
+    def subsampled(self, step: int) -> FileSequence:
+        """Every ``step``-th frame (upstream ``dataset.subsample``); indices restart at 0."""
+        if int(step) < 1:
+            raise ValueError(f"subsample: must be >= 1, got {step}")
+        if step == 1:
+            return self
+        out = object.__new__(type(self))
+        out.__dict__.update(self.__dict__)
+        out.rgb_paths = self.rgb_paths[::step]
+        out.depth_paths = None if self.depth_paths is None else self.depth_paths[::step]
+        out.timestamps = self.timestamps[::step]
+        out._gt = self._gt[::step]
+        out.T_WC = None if self.T_WC is None else self.T_WC[::step]
+        return out

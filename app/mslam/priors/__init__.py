@@ -1,0 +1,14 @@
+"""Paper §3 / spec §2 — where pointmaps come from: the prior protocol and its implementations.
+
+* :mod:`mslam.priors.base` — ``PairPrediction``, the ``Prior`` protocol, ``check_prediction``;
+* :mod:`mslam.priors.synthetic` — ground truth plus a documented noise model;
+* :mod:`mslam.priors.rgbd` — real RGB-D frames, relative pose from features + depth + PnP;
+* :mod:`mslam.priors.mast3r` — adapter to a user's MASt3R install and checkpoint (torch);
+* :mod:`mslam.priors.descriptors` — the patch descriptors shared by the first two.
+
+Submodules are imported on demand (``from mslam.priors.synthetic import SyntheticPrior``).
+"""
+
+from mslam.priors.base import DESC_DIM, PairPrediction, Prior, check_prediction
+
+__all__ = ["DESC_DIM", "PairPrediction", "Prior", "check_prediction"]

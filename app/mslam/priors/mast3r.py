@@ -1,0 +1,277 @@
+"""MASt3R adapter — the real network behind the prior protocol (user's install and weights).
+
+This project cannot ship MASt3R's 2.7 GB checkpoint; users who have it (and ``torch`` plus the
+``naver/mast3r`` code on their path) get the genuine prior here. The adapter reproduces
+upstream's calls (spec §2): upstream's resize/crop to 512 and [-1, 1] normalisation
+(``pointmap.resize_img``, ``pointmap.network_input``), one encoder call per frame (cached like
+upstream's ``frame.feat``), ``_decoder(feat1, pos1, feat2, pos2)`` and
+``_downstream_head(1|2, tokens, true_shape)``. Outputs are at the network resolution (e.g.
+512 x 384 for 640 x 480 input); ``network_frame`` gives the matching resized frame and
+``network_intrinsics`` the matching ``K``.
+
+The network is any object with upstream's interface, so tests use a stand-in; tensor handling
+goes through a small *backend* (``TorchBackend`` by default, importing torch lazily). The
+output activations (spec §2.1) are also given in NumPy form for stand-ins that return raw
+head outputs (``Mast3rConfig.apply_activations``):
+
+* ``pts3d = v / ‖v‖ · (exp(‖v‖) − 1)``, ``conf = 1 + exp(x)``, ``desc = d / ‖d‖``,
+  ``desc_conf = exp(x)``.
+
+Public names, in reading order:
+    pts3d_activation, conf_activation, desc_activation, desc_conf_activation, postprocess,
+    Mast3rConfig, TorchBackend, NumpyBackend, Mast3rUnavailable, load_mast3r, load_prior,
+    Mast3rPrior
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections import OrderedDict
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from mslam_ref.conventions import FloatArray
+from mslam.datasets.frame import Frame
+from mslam.datasets.images import resize_img
+from mslam_ref.pointmap import intrinsics_after_resize, network_input
+from mslam.priors.base import PairPrediction
+
+__all__ = [
+    "CHECKPOINT_ENV",
+    "Mast3rConfig",
+    "Mast3rPrior",
+    "Mast3rUnavailable",
+    "NumpyBackend",
+    "TorchBackend",
+    "conf_activation",
+    "desc_activation",
+    "desc_conf_activation",
+    "load_mast3r",
+    "load_prior",
+    "postprocess",
+    "pts3d_activation",
+]
+
+_INSTALL_HINT = (
+    "the MASt3R prior needs torch (pip install -e '.[mast3r]', CPU build pinned), the "
+    "naver/mast3r code on PYTHONPATH, and a checkpoint such as "
+    "MASt3R_ViTLarge_BaseDecoder_512_catmlpdpt_metric.pth"
+)
+
+
+def pts3d_activation(v: FloatArray) -> FloatArray:
+    """``v / ‖v‖ · (exp(‖v‖) − 1)`` per pixel (depth_mode 'exp'); 0 maps to 0.
+
+    Upstream: dust3r/heads/postprocess.py::reg_dense_depth. Args: v (..., 3). Returns (..., 3).
+    """
+    v = np.asarray(v, dtype=np.float64)
+    n = np.linalg.norm(v, axis=-1, keepdims=True)
+    return np.where(n > 0, v / np.where(n > 0, n, 1.0), 0.0) * np.expm1(n)
+
+
+def conf_activation(x: FloatArray) -> FloatArray:
+    """``1 + exp(x)`` (conf_mode ('exp', 1, inf)); C >= 1. Upstream: postprocess.py::reg_dense_conf."""
+    return 1.0 + np.exp(np.asarray(x, dtype=np.float64))
+
+
+def desc_activation(d: FloatArray) -> FloatArray:
+    """L2 normalisation of (..., F) descriptors. Upstream: mast3r/catmlp_dpt_head.py::postprocess."""
+    d = np.asarray(d, dtype=np.float64)
+    n = np.linalg.norm(d, axis=-1, keepdims=True)
+    return d / np.maximum(n, 1e-12)
+
+
+def desc_conf_activation(x: FloatArray) -> FloatArray:
+    """``exp(x)`` (desc_conf_mode ('exp', 0, inf)); Q > 0."""
+    return np.exp(np.asarray(x, dtype=np.float64))
+
+
+def postprocess(raw: dict[str, Any]) -> dict[str, FloatArray]:
+    """Apply the four activations to raw head outputs with keys pts3d, conf, desc, desc_conf."""
+    return {
+        "pts3d": pts3d_activation(raw["pts3d"]),
+        "conf": conf_activation(raw["conf"]),
+        "desc": desc_activation(raw["desc"]),
+        "desc_conf": desc_conf_activation(raw["desc_conf"]),
+    }
+
+
+@dataclass(frozen=True)
+class Mast3rConfig:
+    """Adapter settings.
+
+    Attributes:
+        size: network resolution, 512 (long side) or 224 (short side + square crop).
+        device: torch device string.
+        apply_activations: the head returns raw values (True) or activated ones (False, as
+            upstream's ``_downstream_head``).
+    """
+
+    size: int = 512
+    device: str = "cpu"
+    apply_activations: bool = False
+
+
+class Mast3rUnavailable(ImportError, ValueError):
+    """torch, the mast3r package or the checkpoint is missing (a ValueError too, so the CLI
+    prints it as one line)."""
+
+
+def _import_torch():
+    try:
+        import torch
+    except ImportError:
+        raise Mast3rUnavailable(f"torch is not installed: {_INSTALL_HINT}") from None
+    return torch
+
+
+class TorchBackend:
+    """Tensor handling with torch (imported on first use)."""
+
+    def __init__(self, device: str = "cpu") -> None:
+        self.torch = _import_torch()
+        self.device = device
+
+    def to_tensor(self, a: np.ndarray):
+        return self.torch.from_numpy(np.ascontiguousarray(a)).to(self.device)
+
+    def to_numpy(self, t) -> np.ndarray:
+        return t.detach().float().cpu().numpy().astype(np.float64)
+
+    def as_float(self, t):
+        return t.float()
+
+    def no_grad(self):
+        return self.torch.inference_mode()
+
+
+class NumpyBackend:
+    """Tensor handling for stand-in networks that work on NumPy arrays (tests, teaching)."""
+
+    def to_tensor(self, a: np.ndarray) -> np.ndarray:
+        return np.asarray(a)
+
+    def to_numpy(self, t) -> np.ndarray:
+        return np.asarray(t, dtype=np.float64)
+
+    def as_float(self, t) -> np.ndarray:
+        return np.asarray(t, dtype=np.float32)
+
+    def no_grad(self):
+        return contextlib.nullcontext()
+
+
+def load_mast3r(checkpoint: str | Path, device: str = "cpu"):
+    """Load ``AsymmetricMASt3R`` from a user-given checkpoint (upstream: mast3r_utils::load_mast3r).
+
+    Raises:
+        FileNotFoundError: the checkpoint is missing. Mast3rUnavailable (an ImportError and a
+        ValueError): torch or mast3r missing, with installation hints.
+    """
+    path = Path(checkpoint)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: MASt3R checkpoint not found; {_INSTALL_HINT}")
+    _import_torch()
+    try:
+        from mast3r.model import AsymmetricMASt3R
+    except ImportError:
+        raise Mast3rUnavailable(f"the mast3r package is not importable: {_INSTALL_HINT}") from None
+    return AsymmetricMASt3R.from_pretrained(str(path)).to(device).eval()
+
+
+#: Environment variable naming the checkpoint for :func:`load_prior`.
+CHECKPOINT_ENV = "MSLAM_MAST3R_CHECKPOINT"
+
+
+def load_prior(checkpoint: str | Path | None = None, cfg: Mast3rConfig | None = None):
+    """A :class:`Mast3rPrior` on the user's checkpoint (argument, else ``$MSLAM_MAST3R_CHECKPOINT``).
+
+    Raises:
+        FileNotFoundError: no checkpoint given or found. Mast3rUnavailable: torch or mast3r
+        missing.
+    """
+    import os
+
+    cfg = cfg or Mast3rConfig()
+    checkpoint = checkpoint or os.environ.get(CHECKPOINT_ENV)
+    if not checkpoint:
+        raise FileNotFoundError(
+            f"no MASt3R checkpoint: set {CHECKPOINT_ENV}=/path/to/checkpoint.pth; {_INSTALL_HINT}"
+        )
+    return Mast3rPrior(load_mast3r(checkpoint, cfg.device), cfg)
+
+
+class Mast3rPrior:
+    """The prior protocol on top of a MASt3R network (module docstring).
+
+    Args:
+        model: object with ``_encode_image``, ``_decoder``, ``_downstream_head``.
+        cfg: adapter settings.
+        backend: tensor backend; default :class:`TorchBackend` on ``cfg.device``.
+    """
+
+    def __init__(self, model, cfg: Mast3rConfig = Mast3rConfig(), backend=None) -> None:
+        for name in ("_encode_image", "_decoder", "_downstream_head"):
+            if not callable(getattr(model, name, None)):
+                raise ValueError(f"model: missing method {name} of the MASt3R interface")
+        if cfg.size not in (224, 512):
+            raise ValueError(f"size: must be 224 or 512, got {cfg.size}")
+        self.model = model
+        self.cfg = cfg
+        self.backend = backend if backend is not None else TorchBackend(cfg.device)
+        self._feat: OrderedDict[tuple, tuple] = OrderedDict()
+
+    def network_frame(self, frame: Frame) -> Frame:
+        """The frame resized and cropped to the network resolution (depth dropped)."""
+        img, _ = resize_img(frame.rgb, self.cfg.size)
+        return Frame(frame.index, frame.timestamp, img, None, frame.T_WC)
+
+    def network_intrinsics(self, K: FloatArray, frame: Frame) -> FloatArray:
+        """``K`` of the network-resolution image (spec §10.2, plain multiplication)."""
+        _, tr = resize_img(frame.rgb, self.cfg.size)
+        return intrinsics_after_resize(K, tr)
+
+    def _encode(self, frame: Frame):
+        key = (int(frame.index), frame.rgb.shape, hash(frame.rgb.tobytes()))
+        if key not in self._feat:
+            img, _ = resize_img(frame.rgb, self.cfg.size)
+            H, W = img.shape[:2]
+            b = self.backend
+            shape = b.to_tensor(np.array([[H, W]], dtype=np.int32))
+            with b.no_grad():
+                feat, pos, _ = self.model._encode_image(b.to_tensor(network_input(img)), shape)
+            self._feat[key] = (feat, pos, shape)
+            if len(self._feat) > 32:
+                self._feat.popitem(last=False)
+        return self._feat[key]
+
+    def _decode(self, enc1, enc2):
+        """Upstream mast3r_utils.py::decoder: both heads on float tokens."""
+        (f1, p1, s1), (f2, p2, s2) = enc1, enc2
+        b = self.backend
+        with b.no_grad():
+            dec1, dec2 = self.model._decoder(f1, p1, f2, p2)
+            res1 = self.model._downstream_head(1, [b.as_float(t) for t in dec1], s1)
+            res2 = self.model._downstream_head(2, [b.as_float(t) for t in dec2], s2)
+        return self._numpy(res1), self._numpy(res2)
+
+    def _numpy(self, res) -> dict[str, FloatArray]:
+        out = {k: self.backend.to_numpy(res[k])[0] for k in ("pts3d", "conf", "desc", "desc_conf")}
+        return postprocess(out) if self.cfg.apply_activations else out
+
+    def mono(self, frame: Frame) -> tuple[FloatArray, FloatArray]:
+        """Upstream mast3r_inference_mono: decode (f, f), keep view 1. Shapes at network size."""
+        enc = self._encode(frame)
+        res11, _ = self._decode(enc, enc)
+        return res11["pts3d"], res11["conf"]
+
+    def pair(self, frame_i: Frame, frame_j: Frame) -> PairPrediction:
+        """Upstream mast3r_asymmetric_inference: ``res11, res21 = decoder(i, j)``."""
+        r1, r2 = self._decode(self._encode(frame_i), self._encode(frame_j))
+        return PairPrediction(
+            r1["pts3d"], r1["conf"], r1["desc"], r1["desc_conf"],
+            r2["pts3d"], r2["conf"], r2["desc"], r2["desc_conf"],
+        )  # fmt: skip

@@ -1,0 +1,435 @@
+"""RGB-D prior — MASt3R-like predictions for real RGB-D frames, without ground truth.
+
+For a real sequence with a depth camera (TUM, 7-Scenes), the pointmap of image i in its own
+camera is the back-projected depth, ``X_ii = z · K⁻¹[u, v, 1]``. The second pointmap needs the
+pose that carries camera j into camera i, and this prior estimates it the classical way, from
+the two images only (never from ground truth):
+
+1. SIFT (or ORB) keypoints in both grey images (upscaled to ``detect_min_width`` when the frame
+   is small), ratio-test matches j → i, kept only where the keypoint of i is claimed once;
+2. 3-D points of j's keypoints from j's depth, with i's keypoints as 2-D observations;
+3. ``cv2.solvePnPRansac`` (EPnP, then the iterative solver if EPnP's answer fails the sanity
+   check: finite, ``|t| <= max_translation``, inliers in front of camera i and reprojecting
+   within ``ransac_px`` after ``cv2.solvePnPRefineLM``) give ``T_ij`` (``X_i = R X_j + t``);
+4. point-to-plane ICP of j's depth points onto i's depth map refines it (``icp_*``).
+
+``X_ji = T_ij · X_jj``. Confidences: valid depth ``C = 1 + conf_max · exp(-σ(z)/conf_sigma)``
+with the Kinect noise model ``σ(z) = 0.0012 + 0.0019 (z - 0.4)²`` (Nguyen et al. 2012); pixels
+without depth are filled from the nearest valid pixel (or ``fill_depth``) and get ``C = 1``.
+For ``C_ji``, pixels of j whose point disagrees with i's depth (occluded or wrong) or falls
+outside image i are pulled towards 1 (``inconsistent_factor``, ``covis_factor``); if the pose
+estimate failed (fewer than ``min_inliers``), ``C_ji = 1`` and ``Q_ji = FAILED_Q`` (0.01)
+everywhere, so that no correspondence of the pair passes upstream's ``Q_conf`` gate.
+Descriptors and Q come from image patches (``descriptors.patch_descriptors``), as in the
+synthetic prior.
+
+Frames of any resolution work: ``K`` is given at the sequence's native size and rescaled to the
+frame's size (``pointmap.scale_intrinsics``).
+
+Public names, in reading order:
+    FAILED_Q, RGBDPriorConfig, RGBDPrior, fill_depth
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+from scipy import ndimage
+
+from mslam_ref import sim3, so3
+from mslam_ref.conventions import FloatArray
+from mslam.datasets.frame import Frame
+from mslam_ref.pointmap import backproject, project, scale_intrinsics
+from mslam.priors.base import PairPrediction
+from mslam.priors.descriptors import DescriptorConfig, patch_descriptors
+
+__all__ = ["FAILED_Q", "RGBDPrior", "RGBDPriorConfig", "fill_depth"]
+
+#: Descriptor confidence ``Q_ji`` of a pair whose pose estimate failed: ``sqrt(Q_ii · Q_ji)``
+#: stays far below upstream's ``Q_conf = 1.5`` for any ``Q_ii <= 1 + q_gain``.
+FAILED_Q = 0.01
+
+
+@dataclass(frozen=True)
+class RGBDPriorConfig:
+    """Parameters of the RGB-D prior.
+
+    Attributes:
+        features: "sift" or "orb".
+        n_features: keypoints per image.
+        ratio: Lowe ratio-test threshold.
+        detect_min_width: frames narrower than this are upscaled for detection only.
+        ransac_px: RANSAC reprojection threshold in frame pixels.
+        ransac_iters: RANSAC iterations.
+        min_inliers: fewer inliers means "pose failed".
+        max_translation: a PnP translation longer than this (m) is rejected as degenerate.
+        icp_iters: point-to-plane ICP iterations refining the PnP pose on the depth maps
+            (0 = off).
+        icp_dist, icp_dist_final: association distance (m) of the first and last ICP iteration
+            (geometric schedule in between).
+        icp_min_frac: the refined pose is kept only if at least this share of j's valid pixels
+            is associated at the end.
+        icp_max_change: ... and if it moves the PnP pose by less than this (m, and rad).
+        fill_depth: depth (m) used when a frame has no valid depth at all.
+        conf_max, conf_sigma: ``C = 1 + conf_max exp(-σ(z) / conf_sigma)`` on valid depth.
+        consistency_tol: relative depth disagreement that marks a pixel of j inconsistent.
+        inconsistent_factor, covis_factor: multipliers of ``C - 1`` (inconsistent / out of view).
+        q_gain, q_contrast: ``Q = 1 + q_gain tanh(contrast / q_contrast)``.
+        desc: patch-descriptor parameters.
+    """
+
+    features: str = "sift"
+    n_features: int = 2000
+    ratio: float = 0.8
+    detect_min_width: int = 480
+    ransac_px: float = 1.5
+    ransac_iters: int = 500
+    min_inliers: int = 15
+    max_translation: float = 5.0
+    icp_iters: int = 12
+    icp_dist: float = 0.1
+    icp_dist_final: float = 0.02
+    icp_min_frac: float = 0.25
+    icp_max_change: float = 0.15
+    fill_depth: float = 3.0
+    conf_max: float = 20.0
+    conf_sigma: float = 0.05
+    consistency_tol: float = 0.05
+    inconsistent_factor: float = 0.1
+    covis_factor: float = 0.2
+    q_gain: float = 6.0
+    q_contrast: float = 0.04
+    desc: DescriptorConfig = field(default_factory=DescriptorConfig)
+
+    def __post_init__(self) -> None:
+        if self.features not in ("sift", "orb"):
+            raise ValueError(f"features: expected 'sift' or 'orb', got {self.features!r}")
+        if self.fill_depth <= 0 or self.ransac_px <= 0 or self.min_inliers < 4:
+            raise ValueError("fill_depth, ransac_px must be > 0 and min_inliers >= 4")
+
+
+def fill_depth(depth: FloatArray, default: float = 3.0) -> tuple[FloatArray, np.ndarray]:
+    """Fill invalid (<= 0) depth from the nearest valid pixel (Euclidean distance transform).
+
+    Args:
+        depth: (H, W) metres, 0 where invalid.
+        default: value used when no pixel is valid.
+
+    Returns:
+        filled (H, W) depth and the (H, W) validity mask of the input.
+    """
+    valid = depth > 0
+    if not valid.any():
+        return np.full(depth.shape, float(default)), valid
+    if valid.all():
+        return depth.copy(), valid
+    _, (iy, ix) = ndimage.distance_transform_edt(~valid, return_indices=True)
+    return depth[iy, ix], valid
+
+
+def _normals(X: FloatArray, valid: np.ndarray) -> tuple[FloatArray, np.ndarray]:
+    """Unit normals of an (H, W, 3) pointmap from central differences, and their validity."""
+    N = np.zeros_like(X)
+    ok = np.zeros(valid.shape, bool)
+    du = X[1:-1, 2:] - X[1:-1, :-2]
+    dv = X[2:, 1:-1] - X[:-2, 1:-1]
+    n = np.cross(du, dv)
+    norm = np.linalg.norm(n, axis=-1)
+    inner = valid[1:-1, 1:-1] & valid[1:-1, 2:] & valid[1:-1, :-2] & valid[2:, 1:-1]
+    inner &= valid[:-2, 1:-1] & (norm > 1e-12)
+    N[1:-1, 1:-1] = n / np.maximum(norm, 1e-12)[..., None]
+    ok[1:-1, 1:-1] = inner
+    return N, ok
+
+
+def _kinect_sigma(z: FloatArray) -> FloatArray:
+    return 0.0012 + 0.0019 * (z - 0.4) ** 2
+
+
+class RGBDPrior:
+    """MASt3R stand-in for real RGB-D frames (module docstring).
+
+    Args:
+        sequence: provides ``K`` at its frames' size (``width``/``height`` attributes, else the
+            first frame's shape) and must have depth.
+        cfg: parameters.
+
+    Use :meth:`from_intrinsics` to build one from ``K`` and an image size instead.
+    """
+
+    def __init__(self, sequence, cfg: RGBDPriorConfig = RGBDPriorConfig()) -> None:
+        if sequence.K is None or not sequence.has_depth:
+            raise ValueError(f"sequence: {sequence.name} needs intrinsics and depth for RGB-D")
+        if getattr(sequence, "width", None) and getattr(sequence, "height", None):
+            size = (int(sequence.width), int(sequence.height))
+        else:
+            H, W = sequence[0].shape
+            size = (W, H)
+        self._setup(sequence.K, size, cfg)
+
+    @classmethod
+    def from_intrinsics(
+        cls, K: FloatArray, image_size: tuple[int, int], cfg: RGBDPriorConfig = RGBDPriorConfig()
+    ) -> RGBDPrior:
+        """Build from ``K`` (3, 3) valid at ``image_size = (W, H)``."""
+        obj = object.__new__(cls)
+        obj._setup(K, image_size, cfg)
+        return obj
+
+    def _setup(self, K: FloatArray, image_size: tuple[int, int], cfg: RGBDPriorConfig) -> None:
+        self.K = np.asarray(K, dtype=np.float64)
+        self.image_size = (int(image_size[0]), int(image_size[1]))
+        self.cfg = cfg
+        self.last_inliers = 0
+        self._cache: OrderedDict[tuple, object] = OrderedDict()
+
+    def _cached(self, kind: str, frame: Frame, fn):
+        """Per-frame results (features, descriptors) keyed by index and image content."""
+        key = (kind, int(frame.index), frame.rgb.shape, hash(frame.rgb.tobytes()))
+        if key not in self._cache:
+            self._cache[key] = fn(frame)
+            if len(self._cache) > 64:
+                self._cache.popitem(last=False)
+        return self._cache[key]
+
+    def K_for(self, frame: Frame) -> FloatArray:
+        """Intrinsics at the frame's resolution."""
+        H, W = frame.shape
+        if (W, H) == self.image_size:
+            return self.K
+        return scale_intrinsics(self.K, self.image_size, (W, H))
+
+    # -- geometry ----------------------------------------------------------------------------
+    def _features(self, frame: Frame):
+        grey = cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2GRAY)
+        H, W = grey.shape
+        f = max(1, int(np.ceil(self.cfg.detect_min_width / W)))
+        if f > 1:
+            grey = cv2.resize(grey, (W * f, H * f), interpolation=cv2.INTER_CUBIC)
+        if self.cfg.features == "sift":
+            det = cv2.SIFT_create(nfeatures=self.cfg.n_features)
+        else:
+            det = cv2.ORB_create(nfeatures=self.cfg.n_features)
+        kps, desc = det.detectAndCompute(grey, None)
+        if desc is None or len(kps) == 0:
+            return np.zeros((0, 2)), None
+        uv = (np.array([k.pt for k in kps], dtype=np.float64) + 0.5) / f - 0.5
+        return uv, desc
+
+    def relative_pose(self, frame_i: Frame, frame_j: Frame) -> tuple[FloatArray, int]:
+        """Estimate ``T_ij`` (camera j → camera i) from the images and j's depth.
+
+        Returns:
+            T_ij: (8,) Sim(3) with s = 1 (identity when the estimate failed).
+            n_inliers: PnP inliers (< ``min_inliers`` means failure).
+        """
+        cfg = self.cfg
+        if frame_j.depth is None:
+            raise ValueError("frame_j: the RGB-D prior needs a depth image")
+        uv_i, d_i = self._cached("features", frame_i, self._features)
+        uv_j, d_j = self._cached("features", frame_j, self._features)
+        if d_i is None or d_j is None or len(uv_i) < 2 or len(uv_j) < 2:
+            return sim3.identity(), 0
+        norm = cv2.NORM_L2 if cfg.features == "sift" else cv2.NORM_HAMMING
+        knn = cv2.BFMatcher(norm).knnMatch(d_j, d_i, k=2)
+        pairs = [
+            (m[0].queryIdx, m[0].trainIdx)
+            for m in knn
+            if len(m) == 2 and m[0].distance < cfg.ratio * m[1].distance
+        ]
+        if len(pairs) < cfg.min_inliers:
+            return sim3.identity(), 0
+        qj, ti = np.array(pairs).T
+        # One-to-one: a keypoint of i claimed by several keypoints of j is ambiguous. On blurred
+        # frames one featureless keypoint can attract dozens of matches, which RANSAC then
+        # "explains" with a camera 1e13 m away (every point projects onto that pixel).
+        _, inv, counts = np.unique(ti, return_inverse=True, return_counts=True)
+        once = counts[inv] == 1
+        qj, ti = qj[once], ti[once]
+        if len(qj) < cfg.min_inliers:
+            return sim3.identity(), 0
+        H, W = frame_j.shape
+        uj = np.clip(np.round(uv_j[qj]), 0, [W - 1, H - 1]).astype(np.int64)
+        z = frame_j.depth[uj[:, 1], uj[:, 0]]
+        ok = z > 0
+        if ok.sum() < cfg.min_inliers:
+            return sim3.identity(), 0
+        Kj, Ki = self.K_for(frame_j), self.K_for(frame_i)
+        rays = np.stack(
+            [
+                (uv_j[qj, 0] - Kj[0, 2]) / Kj[0, 0],
+                (uv_j[qj, 1] - Kj[1, 2]) / Kj[1, 1],
+                np.ones(len(z)),
+            ],
+            -1,
+        )
+        obj = (rays * z[:, None])[ok]
+        img = uv_i[ti][ok]
+        for flags in (cv2.SOLVEPNP_EPNP, cv2.SOLVEPNP_ITERATIVE):
+            T_ij, n = self._pnp(obj, img, Ki, flags)
+            if n >= cfg.min_inliers:
+                return self._refine_icp(frame_i, frame_j, T_ij), n
+        return sim3.identity(), n
+
+    def _refine_icp(self, frame_i: Frame, frame_j: Frame, T_ij: FloatArray) -> FloatArray:
+        """Point-to-plane ICP of j's depth points onto i's depth map, from the PnP pose.
+
+        Projective association (the point of i at the pixel where ``T_ij X_j`` projects),
+        normals of i from central differences, Gauss-Newton on a left perturbation
+        ``exp([dt, dw]) T``, residual ``n · (P - Y)``, association distance shrinking from
+        ``icp_dist`` to ``icp_dist_final``. The PnP pose is kept if too few pixels end up
+        associated or the refinement moves it by more than ``icp_max_change``.
+        """
+        cfg = self.cfg
+        if cfg.icp_iters <= 0 or frame_i.depth is None:
+            return T_ij
+        Ki, Kj = self.K_for(frame_i), self.K_for(frame_j)
+        zj, zi = frame_j.depth, frame_i.depth
+        Xj = backproject(zj, Kj)[zj > 0]
+        if len(Xj) < 100:
+            return T_ij
+        Yi = backproject(zi, Ki)
+        Ni, ok_n = _normals(Yi, zi > 0)
+        H, W = zi.shape
+        R, t = so3.to_matrix(T_ij[3:7]), T_ij[:3].copy()
+        R0, t0 = R.copy(), t.copy()
+        n_it = cfg.icp_iters
+        frac = 0.0
+        for it in range(n_it):
+            a = it / max(n_it - 1, 1)
+            dist = cfg.icp_dist ** (1 - a) * cfg.icp_dist_final**a
+            P = Xj @ R.T + t
+            z = P[:, 2]
+            front = z > 1e-3
+            zs = np.where(front, z, 1.0)
+            u = np.round(Ki[0, 0] * P[:, 0] / zs + Ki[0, 2]).astype(np.int64)
+            v = np.round(Ki[1, 1] * P[:, 1] / zs + Ki[1, 2]).astype(np.int64)
+            ok = front & (u >= 0) & (u < W) & (v >= 0) & (v < H)
+            u, v = np.where(ok, u, 0), np.where(ok, v, 0)
+            ok &= ok_n[v, u]
+            Y, N = Yi[v, u], Ni[v, u]
+            ok &= np.linalg.norm(P - Y, axis=1) < dist
+            frac = float(ok.mean())
+            if ok.sum() < 50:
+                return T_ij
+            P, Y, N = P[ok], Y[ok], N[ok]
+            r = np.sum(N * (P - Y), axis=1)
+            J = np.concatenate([N, np.cross(P, N)], axis=1)
+            w = 1.0 / np.maximum(1.0, np.abs(r) / (0.25 * dist))  # Huber weights
+            A = J.T @ (J * w[:, None])
+            b = -J.T @ (w * r)
+            try:
+                d = np.linalg.solve(A + 1e-9 * np.eye(6), b)
+            except np.linalg.LinAlgError:
+                return T_ij
+            dR = so3.to_matrix(so3.exp(d[3:]))
+            R, t = dR @ R, dR @ t + d[:3]
+            if np.linalg.norm(d) < 1e-7:
+                break
+        rot_change = np.linalg.norm(so3.log(so3.from_matrix(R.T @ R0)))
+        if (
+            frac < cfg.icp_min_frac
+            or np.linalg.norm(t - t0) > cfg.icp_max_change
+            or rot_change > cfg.icp_max_change
+            or not np.all(np.isfinite(t))
+        ):
+            return T_ij
+        return np.concatenate([t, so3.from_matrix(R), [1.0]])
+
+    def _pnp(self, obj: FloatArray, img: FloatArray, K: FloatArray, flags: int):
+        """RANSAC PnP with ``flags`` + LM refinement, then a sanity check of the result.
+
+        EPnP inside RANSAC occasionally returns a degenerate hypothesis (translations of
+        ~1e13 m whose "inliers" are points projected to infinity); such a pose, or one that
+        puts inliers behind camera i, moves them by more than ``max_translation``, or whose
+        refined inliers do not reproject within ``ransac_px``, is reported as a failure
+        (0 inliers) so that the caller can fall back to another solver.
+        """
+        cfg = self.cfg
+        try:
+            found, rvec, tvec, inl = cv2.solvePnPRansac(
+                obj, img, K, None, iterationsCount=cfg.ransac_iters,
+                reprojectionError=cfg.ransac_px, confidence=0.999, flags=flags,
+            )  # fmt: skip
+        except cv2.error:
+            return sim3.identity(), 0
+        if not found or inl is None or len(inl) < cfg.min_inliers:
+            return sim3.identity(), 0
+        inl = inl.ravel()
+        if not (np.all(np.isfinite(rvec)) and np.all(np.isfinite(tvec))):
+            return sim3.identity(), 0
+        rvec, tvec = cv2.solvePnPRefineLM(obj[inl], img[inl], K, None, rvec, tvec)
+        R, t = so3.to_matrix(so3.exp(rvec.ravel())), tvec.ravel()
+        if not (np.all(np.isfinite(R)) and np.all(np.isfinite(t))):
+            return sim3.identity(), 0
+        if np.linalg.norm(t) > cfg.max_translation:
+            return sim3.identity(), 0
+        Xi = obj[inl] @ R.T + t
+        if np.any(Xi[:, 2] <= 1e-3):
+            return sim3.identity(), 0
+        uv = Xi[:, :2] / Xi[:, 2:] * K[[0, 1], [0, 1]] + K[:2, 2]
+        err = np.linalg.norm(uv - img[inl], axis=1)
+        n = int(np.sum(err <= cfg.ransac_px))
+        if n < cfg.min_inliers:
+            return sim3.identity(), 0
+        return np.concatenate([t, so3.exp(rvec.ravel()), [1.0]]), n
+
+    # -- protocol ----------------------------------------------------------------------------
+    def _view(self, frame: Frame) -> tuple[FloatArray, FloatArray, np.ndarray]:
+        if frame.depth is None:
+            raise ValueError(f"frame {frame.index}: the RGB-D prior needs a depth image")
+        z, valid = fill_depth(frame.depth, self.cfg.fill_depth)
+        X = backproject(z, self.K_for(frame))
+        C = np.where(
+            valid, 1.0 + self.cfg.conf_max * np.exp(-_kinect_sigma(z) / self.cfg.conf_sigma), 1.0
+        )
+        return X, C, valid
+
+    def _desc(self, frame: Frame) -> tuple[FloatArray, FloatArray]:
+        D, contrast = self._cached("desc", frame, lambda f: patch_descriptors(f.rgb, self.cfg.desc))
+        return D, 1.0 + self.cfg.q_gain * np.tanh(contrast / self.cfg.q_contrast)
+
+    def mono(self, frame: Frame) -> tuple[FloatArray, FloatArray]:
+        """``X_ii (H, W, 3)`` from the (filled) depth and ``C_ii (H, W)``."""
+        X, C, _ = self._view(frame)
+        return X, C
+
+    def pair(self, frame_i: Frame, frame_j: Frame) -> PairPrediction:
+        """Both pointmaps in camera i, with the relative pose from features + depth + PnP.
+
+        Sets ``self.last_inliers`` to the PnP inlier count of this pair.
+        """
+        X_ii, C_ii, valid_i = self._view(frame_i)
+        X_jj, C_jj, _ = self._view(frame_j)
+        T_ij, n = self.relative_pose(frame_i, frame_j)
+        self.last_inliers = n
+        X_ji = sim3.act(T_ij, X_jj)
+        D_ii, Q_ii = self._desc(frame_i)
+        D_jj, Q_jj = self._desc(frame_j)
+        if n < self.cfg.min_inliers:
+            # No pose: X_ji is j's pointmap left in camera j, so every correspondence the
+            # matcher would find is a guess. C_ji = 1 and a descriptor confidence so low that
+            # the match quality sqrt(Q_ii Q_ji) stays below upstream's Q_conf gate make
+            # tracking, edges and relocalisation reject the pair instead of building on it.
+            C_ji = np.ones_like(C_jj)
+            Q_jj = np.full_like(Q_jj, FAILED_Q)
+        else:
+            C_ji = self._consistency(X_ji, C_jj, frame_i, valid_i)
+        return PairPrediction(X_ii, C_ii, D_ii, Q_ii, X_ji, C_ji, D_jj, Q_jj)
+
+    def _consistency(self, X_ji, C_jj, frame_i: Frame, valid_i: np.ndarray) -> FloatArray:
+        cfg = self.cfg
+        uv, z = project(X_ji, self.K_for(frame_i))
+        H, W = frame_i.shape
+        u, v = np.round(uv[..., 0]), np.round(uv[..., 1])
+        inside = (z > 1e-6) & (u >= 0) & (u <= W - 1) & (v >= 0) & (v <= H - 1)
+        ui = np.clip(u, 0, W - 1).astype(np.int64)
+        vi = np.clip(v, 0, H - 1).astype(np.int64)
+        zi = frame_i.depth[vi, ui]
+        checked = inside & valid_i[vi, ui]
+        bad = checked & (np.abs(zi - z) > cfg.consistency_tol * np.maximum(zi, 1e-6))
+        C = np.where(bad, 1.0 + (C_jj - 1.0) * cfg.inconsistent_factor, C_jj)
+        return np.where(inside, C, 1.0 + (C - 1.0) * cfg.covis_factor)

@@ -1,0 +1,131 @@
+"""Paper §3 (spec §1) — the SLAM system end to end, single process and deterministic.
+
+Upstream runs a frontend process (tracking), a backend process (graph and global
+optimisation, relocalisation) and a viewer, talking through shared memory. Here everything is
+one process and the backend runs synchronously after every new keyframe and every
+relocalisation — upstream's ``single_thread`` evaluation mode — so a run is a pure function of
+its input, config and kernel set.
+
+Modules, in reading order:
+
+* :mod:`~mslam.system.sources` — SOURCE → frames, calibration, prior (checked up front);
+* :mod:`~mslam.system.frontend` — :class:`SlamSystem`: modes, tracking, fusion, keyframes;
+* :mod:`~mslam.system.backend_step` — graph construction and the global solve;
+* :mod:`mslam.system.reloc` — relocalisation; :mod:`mslam.system.graph` — keyframes and edges;
+* :mod:`~mslam.system.outputs` — trajectory, keyframes, PLY, summary, plot.
+
+Quick use::
+
+    from mslam.config import load_config
+    from mslam.kernels import load_kernels
+    from mslam.system import open_source, run_slam
+
+    cfg = load_config()
+    src = open_source("synthetic:loop:40:96x72", cfg)
+    system, meta = run_slam(src, cfg, load_kernels("ref"))
+
+Public names, in reading order:
+    SlamSystem, Mode, open_source, run_slam, write_outputs
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+import warnings
+from typing import Any
+
+import cv2
+
+from mslam.config import SlamConfig
+from mslam.kernels import KernelSet
+from mslam.system.frontend import FramePose, Mode, RunStats, SlamSystem
+from mslam.system.outputs import write_outputs
+from mslam.system.sources import Source, open_source
+
+__all__ = [
+    "FramePose",
+    "Mode",
+    "RunStats",
+    "SlamSystem",
+    "Source",
+    "open_source",
+    "run_slam",
+    "write_outputs",
+]
+
+
+def run_slam(
+    source: Source,
+    cfg: SlamConfig,
+    kernels: KernelSet,
+    progress: bool = False,
+    system: SlamSystem | None = None,
+) -> tuple[SlamSystem, dict[str, Any]]:
+    """Run the SLAM loop over every frame of ``source``.
+
+    Upstream: main.py ``__main__`` (the frame loop) with ``single_thread: True``.
+
+    Reliability: a frame that cannot be read (``OSError``, ``ValueError``, ``cv2.error``) is
+    skipped with a warning and counted; a sequence whose tracking never recovers simply ends
+    with what it had; Ctrl-C stops the loop and returns what exists (``meta["interrupted"]``).
+
+    Args:
+        source: from :func:`open_source`.
+        cfg: the resolved configuration.
+        kernels: the kernel set.
+        progress: show a tqdm progress bar on stderr.
+        system: continue an existing system (default: a new one).
+
+    Returns:
+        the system (keyframes, graph, per-frame poses, stats) and ``meta`` (source, prior,
+        seconds, interrupted).
+    """
+    seq = source.sequence
+    if system is None:
+        system = SlamSystem(source.prior, cfg, kernels, source.K)
+    n = len(seq)
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=n, file=sys.stderr, unit="frame", dynamic_ncols=True, leave=False)
+    interrupted = False
+    shape = None
+    t0 = time.perf_counter()
+    try:
+        for i in range(n):
+            try:
+                frame = seq[i]
+                if shape is None:
+                    shape = frame.shape
+                elif frame.shape != shape:
+                    raise ValueError(f"size {frame.shape} differs from the first frame's {shape}")
+            except (OSError, ValueError, cv2.error) as exc:
+                system.stats.skipped_frames += 1
+                warnings.warn(
+                    f"{source.name}: skipping frame {i}: {exc}", RuntimeWarning, stacklevel=2
+                )
+                if bar is not None:
+                    bar.update(1)
+                continue
+            status = system.process(frame)
+            if bar is not None:
+                bar.set_postfix(
+                    kf=len(system.keyframes), mode=system.mode.name, last=status, refresh=False
+                )
+                bar.update(1)
+    except KeyboardInterrupt:
+        interrupted = True
+    finally:
+        if bar is not None:
+            bar.close()
+    seconds = time.perf_counter() - t0
+    system.mode = Mode.TERMINATED
+    meta = {
+        "source": source.name,
+        "prior": source.prior_name,
+        "seconds": seconds,
+        "interrupted": interrupted,
+    }
+    return system, meta

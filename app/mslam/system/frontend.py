@@ -1,0 +1,287 @@
+"""Paper §3.3–3.4 (spec §1.2, §1.4, §5) — the frontend: modes, tracking, fusion, keyframes.
+
+``SlamSystem.process(frame)`` is upstream's main-loop body for one frame, single process:
+
+* **INIT** — ``prior.mono(frame)`` gives the first keyframe (pose = identity); mode → TRACKING.
+* **TRACKING** — ``prior.pair(frame, last keyframe)``, matching (initialised with the previous
+  frame's ``idx_f2k``), the masks of spec §5.1, the IRLS Gauss–Newton on ``T_CkCf``
+  (constant-position initial guess), fusion of the keyframe's pointmap (``X_kk = T_CkCf · X_kf``,
+  paper Eq. 8), and the new-keyframe test (spec §5.5). Too few matches or a Cholesky failure
+  switch to RELOC. A new keyframe triggers graph construction and the global backend
+  **synchronously** (upstream's ``single_thread`` mode).
+* **RELOC** — ``mslam.system.reloc.relocalise`` on the frame; on success mode → TRACKING.
+
+Every frame's pose is stored *relative to a keyframe* (``T_CkCf``) and composed with the final
+keyframe poses at the end (``frame_poses``), so the per-frame trajectory benefits from the
+backend and from loop closures. Frames seen while lost have no pose.
+
+Public names, in reading order:
+    Mode, FramePose, RunStats, SlamSystem
+"""
+
+from __future__ import annotations
+
+import enum
+import time
+from collections import defaultdict
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from mslam_ref import sim3
+from mslam.config import SlamConfig
+from mslam_ref.conventions import FloatArray
+from mslam.datasets.frame import Frame
+from mslam.system.graph import FactorGraph, Keyframe, KeyframeStore
+from mslam.kernels import KernelSet
+from mslam.system.backend_step import add_keyframe_edges, solve_backend
+from mslam.system.retrieval_features import RetrievalIndex
+
+__all__ = ["FramePose", "Mode", "RunStats", "SlamSystem"]
+
+
+class Mode(enum.IntEnum):
+    """Upstream frame.py::Mode."""
+
+    INIT = 0
+    TRACKING = 1
+    RELOC = 2
+    TERMINATED = 3
+
+
+@dataclass
+class FramePose:
+    """A processed frame's pose relative to keyframe ``kf``: ``T_WC = T_WC[kf] ∘ T_CkCf``.
+
+    ``status`` is ``"keyframe"`` (the frame became keyframe ``kf``), ``"tracked"``,
+    ``"relocalised"`` or ``"lost"`` (no pose; ``kf = -1``).
+    """
+
+    index: int
+    timestamp: float
+    kf: int
+    T_CkCf: FloatArray
+    status: str
+
+
+@dataclass
+class RunStats:
+    """Counters and per-stage seconds of a run (reported in ``summary.json``)."""
+
+    frames: int = 0
+    lost_frames: int = 0
+    tracking_failures: int = 0
+    reloc_attempts: int = 0
+    relocalisations: int = 0
+    skipped_frames: int = 0
+    backend_solves: int = 0
+    seconds: dict[str, float] = field(default_factory=lambda: defaultdict(float))
+
+
+def _flat(a: np.ndarray) -> np.ndarray:
+    return a.reshape(-1, a.shape[-1]) if a.ndim == 3 else a.reshape(-1)
+
+
+class SlamSystem:
+    """The SLAM system of one run: keyframes, graph, retrieval, mode, per-frame poses.
+
+    Args:
+        prior: a ``Prior`` (``mono``, ``pair``).
+        cfg: the resolved :class:`~mslam.config.SlamConfig`.
+        kernels: the :class:`~mslam.kernels.KernelSet` (``ref`` or ``fast``).
+        K: (3, 3) intrinsics at the pointmap resolution; required when ``cfg.use_calib``.
+    """
+
+    def __init__(
+        self, prior: Any, cfg: SlamConfig, kernels: KernelSet, K: FloatArray | None = None
+    ):
+        from mslam_ref import fusion, tracking
+
+        if cfg.use_calib and K is None:
+            raise ValueError("K: calibrated mode (use_calib) needs intrinsics")
+        self.prior, self.cfg, self.kernels = prior, cfg, kernels
+        self.K = None if not cfg.use_calib else np.asarray(K, dtype=np.float64)
+        self.matching_cfg = cfg.matching()
+        self.tracking_cfg = cfg.tracking()
+        self.fusion_cfg = cfg.fusion()
+        self.backend_cfg = cfg.backend()
+        self._fusion_ref, self._tracking_ref = fusion, tracking
+        self.keyframes = KeyframeStore()
+        self.graph = FactorGraph()
+        self.retrieval = RetrievalIndex(cfg.retrieval)
+        self.mode = Mode.INIT
+        self.idx_f2k: np.ndarray | None = None
+        self.T_WC_last = sim3.identity()
+        self.poses: list[FramePose] = []
+        self.stats = RunStats()
+        self.backend_history: list[dict[str, Any]] = []
+
+    # -- bookkeeping -----------------------------------------------------------------------
+    @contextmanager
+    def timer(self, stage: str):
+        """Add the wall time of the block to ``stats.seconds[stage]``."""
+        t0 = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.stats.seconds[stage] += time.perf_counter() - t0
+
+    def _constrain(self, X: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+        """Points on the known rays in calibrated mode (spec §6.2), flat (N, 3)."""
+        if self.K is None:
+            return X
+        from mslam_ref.calib import constrain_points_to_ray
+
+        return constrain_points_to_ray(X.reshape(*shape, 3), self.K).reshape(-1, 3)
+
+    def new_keyframe(
+        self,
+        frame: Frame,
+        T_WC: FloatArray,
+        X: np.ndarray,
+        C: np.ndarray,
+        D: np.ndarray | None = None,
+        Q: np.ndarray | None = None,
+    ) -> int:
+        """Append a keyframe with a fresh pointmap state; returns its index."""
+        shape = (int(X.shape[0]), int(X.shape[1]))
+        state = self._fusion_ref.init_pointmap(_flat(X), _flat(C), self.fusion_cfg)
+        if D is None or Q is None:
+            with self.timer("prior"):
+                p = self.prior.pair(frame, frame)
+            D, Q = p.D_ii, p.Q_ii
+        features = self.retrieval.features(D, Q)
+        kf = Keyframe(
+            frame=frame,
+            T_WC=np.asarray(T_WC, np.float64).copy(),
+            state=state,
+            shape=shape,
+            features=features,
+        )
+        return self.keyframes.append(kf)
+
+    def _record(self, frame: Frame, kf: int, T_CkCf: FloatArray | None, status: str) -> None:
+        T = sim3.identity() if T_CkCf is None else np.asarray(T_CkCf, np.float64)
+        self.poses.append(FramePose(int(frame.index), float(frame.timestamp), kf, T, status))
+
+    # -- the main-loop body ----------------------------------------------------------------
+    def process(self, frame: Frame) -> str:
+        """Process one frame (spec §1.4 step 4-5); returns its status."""
+        self.stats.frames += 1
+        if self.mode == Mode.INIT:
+            with self.timer("prior"):
+                X, C = self.prior.mono(frame)
+            k = self.new_keyframe(frame, sim3.identity(), X, C)
+            self.retrieval.insert(self.keyframes[k].features)
+            self.T_WC_last = self.keyframes[k].T_WC.copy()
+            self._record(frame, k, None, "keyframe")
+            self.mode = Mode.TRACKING
+            return "keyframe"
+        if self.mode == Mode.RELOC:
+            from mslam.system.reloc import relocalise
+
+            self.stats.reloc_attempts += 1
+            with self.timer("reloc"):
+                ok = relocalise(self, frame)
+            if ok:
+                self.stats.relocalisations += 1
+                k = len(self.keyframes) - 1
+                self.T_WC_last = self.keyframes[k].T_WC.copy()
+                self.idx_f2k = None
+                self._record(frame, k, None, "relocalised")
+                self.mode = Mode.TRACKING
+                return "relocalised"
+            self.stats.lost_frames += 1
+            self._record(frame, -1, None, "lost")
+            return "lost"
+        status = self.track(frame)
+        if status == "lost":
+            self.stats.tracking_failures += 1
+            self.stats.lost_frames += 1
+            self.mode = Mode.RELOC
+        return status
+
+    def track(self, frame: Frame) -> str:
+        """Track ``frame`` against the last keyframe (upstream tracker.py::FrameTracker.track).
+
+        Returns ``"tracked"``, ``"keyframe"`` (it became a new keyframe) or ``"lost"``.
+        """
+        tr, kr = self._tracking_ref, self.kernels
+        kf_idx = len(self.keyframes) - 1
+        kf = self.keyframes[kf_idx]
+        with self.timer("prior"):
+            p = self.prior.pair(frame, kf.frame)
+        H, W = p.X_ii.shape[:2]
+        if (H, W) != kf.shape:
+            raise ValueError(f"frame {frame.index}: pointmap shape {(H, W)} != keyframe {kf.shape}")
+        with self.timer("matching"):
+            idx_f2k, valid_match_k = kr.matching.match(
+                p.X_ii, p.X_ji, p.D_ii, p.D_ji, self.idx_f2k, self.matching_cfg
+            )
+        idx_f2k = np.asarray(idx_f2k, np.int64)
+        valid_match_k = np.asarray(valid_match_k, bool).reshape(-1)
+        self.idx_f2k = idx_f2k
+        with self.timer("tracking"):
+            Q_k = tr.match_quality(_flat(p.Q_ii), _flat(p.Q_ji), idx_f2k)
+            state_f = self._fusion_ref.init_pointmap(_flat(p.X_ii), _flat(p.C_ii), self.fusion_cfg)
+            X_f = self._constrain(state_f.X_canon, (H, W))[idx_f2k]
+            X_k = self._constrain(kf.state.X_canon, (H, W))
+            C_f = np.asarray(self._fusion_ref.average_confidence(state_f)).reshape(-1)[idx_f2k]
+            C_k = np.asarray(self._fusion_ref.average_confidence(kf.state)).reshape(-1)
+            valid_opt, valid_kf = tr.tracking_masks(valid_match_k, C_f, C_k, Q_k, self.tracking_cfg)
+            if float(np.mean(valid_opt)) < self.tracking_cfg.min_match_frac:
+                self._record(frame, -1, None, "lost")
+                return "lost"
+            T_init = sim3.mul(sim3.inv(kf.T_WC), self.T_WC_last)
+            X_k_arg = X_k.reshape(H, W, 3) if self.K is not None else X_k
+            T_CkCf, info = kr.tracking.solve(
+                X_f, X_k_arg, Q_k, valid_opt, T_init, self.tracking_cfg, self.K
+            )
+        if getattr(info, "failed", False) or not np.all(np.isfinite(T_CkCf)):
+            self._record(frame, -1, None, "lost")
+            return "lost"
+        T_CkCf = np.asarray(T_CkCf, np.float64)
+        T_WCf = sim3.mul(kf.T_WC, T_CkCf)
+        self.T_WC_last = T_WCf
+        with self.timer("fusion"):
+            X_kk = sim3.act(T_CkCf, _flat(p.X_ji))
+            kf.state = kr.fusion.update_pointmap(kf.state, X_kk, _flat(p.C_ji), self.fusion_cfg)
+        new_kf = bool(tr.needs_new_keyframe(idx_f2k, valid_match_k, valid_kf, self.tracking_cfg))
+        if not new_kf:
+            self._record(frame, kf_idx, T_CkCf, "tracked")
+            return "tracked"
+        self.idx_f2k = None  # upstream reset_idx_f2k
+        k = self.new_keyframe(frame, T_WCf, p.X_ii, p.C_ii, p.D_ii, p.Q_ii)
+        self._record(frame, k, None, "keyframe")
+        with self.timer("graph"):
+            add_keyframe_edges(self, k)
+        with self.timer("backend"):
+            solve_backend(self)
+        self.T_WC_last = self.keyframes[k].T_WC.copy()
+        return "keyframe"
+
+    # -- results ---------------------------------------------------------------------------
+    def frame_poses(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Poses of every frame that has one, with the final keyframe poses.
+
+        Returns:
+            indices (M,) int, timestamps (M,), T_WC (M, 8) Sim(3).
+        """
+        rows = [p for p in self.poses if p.kf >= 0 and p.kf < len(self.keyframes)]
+        if not rows:
+            return np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 8))
+        T_kf = self.keyframes.poses()
+        T = sim3.mul(T_kf[[p.kf for p in rows]], np.stack([p.T_CkCf for p in rows]))
+        return (
+            np.array([p.index for p in rows], np.int64),
+            np.array([p.timestamp for p in rows]),
+            T,
+        )
+
+    def keyframe_poses(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Keyframe frame indices (K,), timestamps (K,) and poses (K, 8)."""
+        idx = np.array([kf.frame.index for kf in self.keyframes], np.int64)
+        ts = np.array([kf.frame.timestamp for kf in self.keyframes], np.float64)
+        return idx, ts, self.keyframes.poses()

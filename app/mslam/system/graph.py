@@ -1,0 +1,307 @@
+"""Paper §3.4–3.5 (spec §1.3, §7.3–7.4) — keyframes, graph edges, edge acceptance, two-way blocks.
+
+The keyframe store holds, per keyframe, the input frame, its Sim(3) pose ``T_WC``, its fused
+canonical pointmap (``PointmapState``) and its retrieval features. Unlike upstream's
+``SharedKeyframes`` (512 slots preallocated on the GPU, the cause of the out-of-memory reports
+of spec §14) it is a Python list that grows one keyframe at a time.
+
+An edge (i, j) between two keyframes is made like upstream's ``FactorGraph.add_factors``:
+the prior decodes the pair both ways, ``pair(i, j)`` and ``pair(j, i)``, matching runs on both
+directions in one batched call, and the per-pixel match quality
+``Q_j[n] = sqrt(Q_ii[idx_i2j[n]] · Q_ji[n])`` (and ``Q_i`` likewise) decides the edge's match
+fraction ``min(mean(valid_j), mean(valid_i))`` with ``valid = valid_match ∧ Q > Q_conf``. An
+edge is rejected when that fraction is below ``min_match_frac`` **unless it is consecutive**
+(``i == j - 1``, always accepted). In strict mode (relocalisation) a single rejected edge
+rejects them all. Each stored edge gives two directed residual blocks for the backend
+(``two_way_blocks``).
+
+Public names, in reading order:
+    Keyframe, KeyframeStore, Edge, match_pairs, FactorGraph
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from types import SimpleNamespace
+from typing import Any
+
+import numpy as np
+
+from mslam_ref.conventions import BoolArray, FloatArray, IntArray
+from mslam.datasets.frame import Frame
+
+__all__ = ["Edge", "FactorGraph", "Keyframe", "KeyframeStore", "match_pairs"]
+
+
+@dataclass(eq=False)
+class Keyframe:
+    """One keyframe (upstream frame.py::Frame as stored in ``SharedKeyframes``).
+
+    Attributes:
+        frame: the input frame (index, timestamp, rgb, ...).
+        T_WC: (8,) Sim(3) camera-to-world pose, updated by the backend.
+        state: the fused canonical pointmap (``mslam_ref.fusion.PointmapState``: X_canon (N, 3),
+            C (N,) accumulated confidence, N, N_updates, score).
+        shape: (H, W) of the pointmap.
+        features: (nfeat, F) retrieval features, or None.
+        T_WC_init: (8,) the pose the keyframe was created with (tracking or relocalisation,
+            before any backend solve), kept for plots and diagnostics.
+    """
+
+    frame: Frame
+    T_WC: FloatArray
+    state: Any
+    shape: tuple[int, int]
+    features: FloatArray | None = None
+    T_WC_init: FloatArray | None = None
+
+    def __post_init__(self) -> None:
+        if self.T_WC_init is None:
+            self.T_WC_init = np.asarray(self.T_WC, dtype=np.float64).copy()
+
+
+class KeyframeStore:
+    """Keyframes in creation order; grows one at a time (no preallocated buffer).
+
+    Upstream: frame.py::SharedKeyframes (``append``, ``pop_last``, ``last_keyframe``,
+    ``update_T_WCs``).
+    """
+
+    def __init__(self) -> None:
+        self._kfs: list[Keyframe] = []
+
+    def __len__(self) -> int:
+        return len(self._kfs)
+
+    def __getitem__(self, i: int) -> Keyframe:
+        return self._kfs[i]
+
+    def __iter__(self):
+        return iter(self._kfs)
+
+    def append(self, kf: Keyframe) -> int:
+        """Add a keyframe; returns its index."""
+        if self._kfs and kf.shape != self._kfs[0].shape:
+            raise ValueError(f"kf: pointmap shape {kf.shape} differs from {self._kfs[0].shape}")
+        self._kfs.append(kf)
+        return len(self._kfs) - 1
+
+    def pop_last(self) -> Keyframe:
+        """Remove and return the last keyframe (a failed relocalisation)."""
+        return self._kfs.pop()
+
+    def last(self) -> Keyframe:
+        """The most recent keyframe (upstream ``last_keyframe``)."""
+        return self._kfs[-1]
+
+    def poses(self) -> FloatArray:
+        """(K, 8) Sim(3) poses of all keyframes."""
+        return np.stack([kf.T_WC for kf in self._kfs]) if self._kfs else np.zeros((0, 8))
+
+    def set_poses(self, T_WC: FloatArray, indices: IntArray | None = None) -> None:
+        """Write back poses (upstream ``update_T_WCs``); ``indices`` default to all."""
+        T_WC = np.asarray(T_WC, dtype=np.float64)
+        indices = np.arange(len(self._kfs)) if indices is None else np.asarray(indices)
+        for k, T in zip(indices, T_WC, strict=True):
+            self._kfs[int(k)].T_WC = T.copy()
+
+    def pointmaps(self, fusion: Any, K: FloatArray | None = None) -> tuple[FloatArray, FloatArray]:
+        """Stacked canonical pointmaps and average confidences of all keyframes.
+
+        Args:
+            fusion: the ``mslam_ref.fusion`` module (for ``average_confidence``).
+            K: (3, 3) intrinsics in calibrated mode: points are constrained to the known rays
+                (``mslam_ref.calib.constrain_points_to_ray``), as upstream's ``solve_GN_calib``.
+
+        Returns:
+            X (K, H, W, 3) and C (K, H, W) = C / N.
+        """
+        H, W = self._kfs[0].shape
+        X = np.stack([kf.state.X_canon.reshape(H, W, 3) for kf in self._kfs])
+        C = np.stack(
+            [np.asarray(fusion.average_confidence(kf.state)).reshape(H, W) for kf in self._kfs]
+        )
+        if K is not None:
+            from mslam_ref.calib import constrain_points_to_ray
+
+            X = np.stack([constrain_points_to_ray(x, K) for x in X])
+        return X, C
+
+
+@dataclass(eq=False)
+class Edge:
+    """A stored graph edge (i, j) with both directions' matches (upstream ``FactorGraph`` rows).
+
+    Attributes:
+        i, j: keyframe indices (upstream ``ii``, ``jj``).
+        idx_i2j: (N,) for every pixel of j, the linear index of its match in i.
+        idx_j2i: (N,) for every pixel of i, the linear index of its match in j.
+        valid_match_j, valid_match_i: (N,) bool validity of those matches.
+        Q_j, Q_i: (N,) match quality ``sqrt(Q_ii[idx_i2j] · Q_ji)`` and ``sqrt(Q_jj[idx_j2i] · Q_ij)``.
+        match_frac: ``min(mean(valid_j), mean(valid_i))``, the acceptance statistic.
+        kind: ``"consecutive"``, ``"retrieval"`` (loop closure) or ``"reloc"``.
+    """
+
+    i: int
+    j: int
+    idx_i2j: IntArray
+    idx_j2i: IntArray
+    valid_match_j: BoolArray
+    valid_match_i: BoolArray
+    Q_j: FloatArray
+    Q_i: FloatArray
+    match_frac: float
+    kind: str = "retrieval"
+
+
+def _flat(a: np.ndarray, trailing: int = 0) -> np.ndarray:
+    return a.reshape(-1, *a.shape[a.ndim - trailing :]) if trailing else a.reshape(-1)
+
+
+def match_pairs(
+    store: KeyframeStore,
+    ii: list[int],
+    jj: list[int],
+    prior: Any,
+    kernels: Any,
+    matching_cfg: Any,
+    Q_conf: float,
+) -> list[Edge]:
+    """Decode and match keyframe pairs both ways; returns unfiltered candidate edges.
+
+    Upstream: mast3r_utils.py::mast3r_decode_symmetric_batch, mast3r_match_symmetric;
+    global_opt.py::FactorGraph.add_factors (steps 1-4, spec §7.3).
+
+    Args:
+        store: the keyframes.
+        ii, jj: (E,) keyframe index pairs.
+        prior: a ``Prior`` (``pair(frame_i, frame_j) -> PairPrediction``).
+        kernels: the kernel set (uses ``kernels.matching.match``).
+        matching_cfg: ``MatchingConfig``.
+        Q_conf: quality threshold of the validity mask (``local_opt.Q_conf``).
+
+    Returns:
+        one :class:`Edge` per pair, ``kind`` left at its default.
+    """
+    from mslam_ref.tracking import match_quality
+
+    if len(ii) != len(jj):
+        raise ValueError(f"ii, jj: lengths differ ({len(ii)} != {len(jj)})")
+    if not ii:
+        return []
+    fwd, bwd = [], []
+    for i, j in zip(ii, jj):
+        fwd.append(prior.pair(store[i].frame, store[j].frame))  # X_ii, X_ji in camera i
+        bwd.append(prior.pair(store[j].frame, store[i].frame))  # X_jj, X_ij in camera j
+    # One batched call for both directions: the first half gives idx_i2j, the second idx_j2i.
+    X11 = np.stack([p.X_ii for p in fwd] + [p.X_ii for p in bwd])
+    X21 = np.stack([p.X_ji for p in fwd] + [p.X_ji for p in bwd])
+    D11 = np.stack([p.D_ii for p in fwd] + [p.D_ii for p in bwd])
+    D21 = np.stack([p.D_ji for p in fwd] + [p.D_ji for p in bwd])
+    idx, valid = kernels.matching.match(X11, X21, D11, D21, None, matching_cfg)
+    idx = np.asarray(idx, dtype=np.int64)
+    valid = np.asarray(valid, dtype=bool).reshape(idx.shape)
+    E = len(ii)
+    edges = []
+    for e, (i, j) in enumerate(zip(ii, jj)):
+        p, q = fwd[e], bwd[e]
+        idx_i2j, valid_j = idx[e], valid[e]
+        idx_j2i, valid_i = idx[E + e], valid[E + e]
+        Q_j = match_quality(_flat(p.Q_ii), _flat(p.Q_ji), idx_i2j)
+        Q_i = match_quality(_flat(q.Q_ii), _flat(q.Q_ji), idx_j2i)
+        frac_j = float(np.mean(valid_j & (Q_j > Q_conf)))
+        frac_i = float(np.mean(valid_i & (Q_i > Q_conf)))
+        edges.append(
+            Edge(int(i), int(j), idx_i2j, idx_j2i, valid_j, valid_i, Q_j, Q_i, min(frac_j, frac_i))
+        )
+    return edges
+
+
+@dataclass
+class FactorGraph:
+    """Stored edges of the keyframe graph (upstream global_opt.py::FactorGraph).
+
+    The graph is never pruned; ``window_size`` is unused upstream too.
+    """
+
+    edges: list[Edge] = field(default_factory=list)
+    candidates_tested: int = 0
+
+    def __len__(self) -> int:
+        return len(self.edges)
+
+    def add_factors(
+        self,
+        ii: list[int],
+        jj: list[int],
+        store: KeyframeStore,
+        prior: Any,
+        kernels: Any,
+        matching_cfg: Any,
+        Q_conf: float,
+        min_match_frac: float,
+        is_reloc: bool = False,
+        kind: str = "retrieval",
+    ) -> bool:
+        """Match candidate pairs and store the accepted edges; True if at least one was added.
+
+        Upstream: global_opt.py::FactorGraph.add_factors (spec §7.3 steps 5-7).
+
+        Acceptance: an edge is invalid when ``match_frac < min_match_frac`` and it is not
+        consecutive (``i == j - 1``); with ``is_reloc`` (strict) any invalid edge rejects all.
+        Consecutive edges get ``kind = "consecutive"``, the others ``kind``.
+        """
+        candidates = match_pairs(store, ii, jj, prior, kernels, matching_cfg, Q_conf)
+        self.candidates_tested += len(candidates)
+        keep = []
+        for e in candidates:
+            consecutive = e.i == e.j - 1
+            if consecutive:
+                e.kind = "consecutive"
+            else:
+                e.kind = kind
+            keep.append(consecutive or e.match_frac >= min_match_frac)
+        if is_reloc and not all(keep):
+            return False
+        added = [e for e, k in zip(candidates, keep) if k]
+        self.edges.extend(added)
+        return bool(added)
+
+    def remove_keyframe(self, k: int) -> None:
+        """Drop every edge touching keyframe ``k`` (used when a relocalisation is undone)."""
+        self.edges = [e for e in self.edges if k not in (e.i, e.j)]
+
+    def count(self, kind: str) -> int:
+        """Number of stored edges of one kind."""
+        return sum(e.kind == kind for e in self.edges)
+
+    def two_way_blocks(self) -> SimpleNamespace:
+        """Directed residual blocks of all edges (upstream ``prep_two_way_edges``, spec §7.4).
+
+        Edge (i, j) gives block (i ← j) with ``idx_i2j, valid_match_j, Q_j`` (residuals over
+        the pixels of j, reference pixel in i) and block (j ← i) with ``idx_j2i,
+        valid_match_i, Q_i``.
+
+        Returns:
+            namespace with ii (D,), jj (D,) int64, idx (D, N) int64, valid (D, N) bool,
+            Q (D, N) float64, D = 2E.
+        """
+        if not self.edges:
+            z = np.zeros(0, dtype=np.int64)
+            return SimpleNamespace(
+                ii=z,
+                jj=z,
+                idx=np.zeros((0, 0), np.int64),
+                valid=np.zeros((0, 0), bool),
+                Q=np.zeros((0, 0)),
+            )
+        ii = [e.i for e in self.edges] + [e.j for e in self.edges]
+        jj = [e.j for e in self.edges] + [e.i for e in self.edges]
+        idx = np.stack([e.idx_i2j for e in self.edges] + [e.idx_j2i for e in self.edges])
+        valid = np.stack(
+            [e.valid_match_j for e in self.edges] + [e.valid_match_i for e in self.edges]
+        )
+        Q = np.stack([e.Q_j for e in self.edges] + [e.Q_i for e in self.edges])
+        return SimpleNamespace(
+            ii=np.asarray(ii, np.int64), jj=np.asarray(jj, np.int64), idx=idx, valid=valid, Q=Q
+        )
