@@ -1,5 +1,7 @@
-"""Every public name of ``mslam_fast.<module>`` exists in ``mslam_ref.<module>`` with the same
-parameters (names, kinds and defaults; annotations are not compared)."""
+"""Every public name of ``mslam_fast.<module>`` is a Taichi twin of ``mslam_ref.<module>``:
+the reference has it, with the same parameters (names, kinds and defaults; annotations are
+not compared), and the fast name is its own function, never the reference object forwarded.
+The kernel set's pieces exist on both sides."""
 
 from __future__ import annotations
 
@@ -10,6 +12,7 @@ import pkgutil
 import pytest
 
 import mslam_fast
+from mslam.kernels import PIECES
 
 FAST_MODULES = sorted(
     m.name
@@ -28,7 +31,7 @@ def test_fast_has_modules() -> None:
 
 
 @pytest.mark.parametrize("fast_name", FAST_MODULES)
-def test_public_names_match_reference(fast_name: str) -> None:
+def test_public_names_are_twins(fast_name: str) -> None:
     fast_mod = importlib.import_module(fast_name)
     ref_mod = importlib.import_module(fast_name.replace("mslam_fast", "mslam_ref", 1))
     public = getattr(fast_mod, "__all__", None)
@@ -36,7 +39,17 @@ def test_public_names_match_reference(fast_name: str) -> None:
     for name in public:
         assert hasattr(ref_mod, name), f"{fast_name}.{name} has no reference twin"
         f, r = getattr(fast_mod, name), getattr(ref_mod, name)
-        if inspect.isclass(r) and f is r:
-            continue  # shared dataclass re-exported from the reference
-        if callable(f) and callable(r):
-            assert _params(f) == _params(r), f"signature of {fast_name}.{name} differs"
+        if inspect.ismodule(f):
+            assert inspect.ismodule(r), f"{fast_name}.{name}: module vs {type(r)}"
+            continue
+        assert f is not r, f"{fast_name}.{name} forwards the reference object"
+        assert callable(f) and callable(r), f"{fast_name}.{name}: not a function"
+        assert _params(f) == _params(r), f"signature of {fast_name}.{name} differs"
+
+
+@pytest.mark.parametrize("piece", sorted(PIECES))
+def test_kernel_set_pieces_exist_in_both(piece: str) -> None:
+    for package in ("mslam_ref", "mslam_fast"):
+        module = importlib.import_module(f"{package}.{piece}")
+        for name in PIECES[piece]:
+            assert name in module.__all__, f"{package}.{piece}.{name} missing"

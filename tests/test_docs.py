@@ -26,8 +26,8 @@ def _rows() -> list[list[str]]:
 
 
 def _resolve(package: str, dotted: str) -> object:
-    parts = dotted.split(".")
-    for cut in range(len(parts), 0, -1):
+    parts = dotted.split(".") if dotted else []
+    for cut in range(len(parts), -1, -1):
         try:
             obj: object = importlib.import_module(".".join([package, *parts[:cut]]))
         except ModuleNotFoundError:
@@ -50,8 +50,9 @@ def test_named_functions_exist(column: int, package: str) -> None:
     missing = []
     for row in ROWS:
         for name in re.findall(r"`([A-Za-z_][\w.]*)`", row[column]):
+            pkg, dotted = ("mslam", name[6:]) if name.startswith("mslam.") else (package, name)
             try:
-                _resolve(package, name)
+                _resolve(pkg, dotted)
             except (ModuleNotFoundError, AttributeError):
                 missing.append(f"{package}.{name}")
     assert not missing, f"paper_map names objects that do not exist: {missing}"

@@ -53,7 +53,7 @@ def test_parity_linear_system_and_step(fast: str, problem) -> None:
     dl_f = F.schur.back_substitute(sr[2], br[2], br[4], dc, st)
     _close(dl_f, dl_r, fast, np.abs(dl_r).max())
     step_r = lm.solve_damped(br, lam, st, R)
-    step_f = F.lm.solve_damped(br, lam, st)
+    step_f = lm.solve_damped(br, lam, st, F)
     for a, b in zip(step_f, step_r):
         _close(a, b, fast, np.abs(b).max())
 
@@ -63,7 +63,7 @@ def test_parity_lm_run(fast64: str, problem) -> None:
 
     cfg = lm.LMConfig(iterations=5)
     ref = lm.optimize(problem, cfg)
-    fst = F.lm.optimize(problem, cfg)
+    fst = lm.optimize(problem, cfg, F)
     assert fst.iterations == ref.iterations
     t = tol("ba", "f64")
     np.testing.assert_allclose([h["cost"] for h in fst.history], [h["cost"] for h in ref.history],

@@ -50,8 +50,8 @@ def test_linearize_parity(fast: str, calibrated: bool, seed: int) -> None:
     assert np.all(np.abs(Hf - Hr) <= t["atol"] * scale + t["rtol"] * np.abs(Hr))
     gscale = np.abs(gr).max(axis=(1, 2), keepdims=True)
     assert np.all(np.abs(gf - gr) <= t["atol"] * gscale + t["rtol"] * np.abs(gr))
-    _, _, cr = ref._linearize_with_cost(T, X, C, ii, jj, idx, valid, Q, ref.BackendConfig(), Kc)
-    _, _, cf = fst._linearize_with_cost(T, X, C, ii, jj, idx, valid, Q, ref.BackendConfig(), Kc)
+    _, _, cr = ref.linearize_with_cost(T, X, C, ii, jj, idx, valid, Q, ref.BackendConfig(), Kc)
+    _, _, cf = fst.linearize_with_cost(T, X, C, ii, jj, idx, valid, Q, ref.BackendConfig(), Kc)
     assert cf == pytest.approx(cr, rel=t["rtol"])
 
 

@@ -27,7 +27,7 @@ def test_update_parity(fast: str, mode: str, shape: tuple[int, ...]) -> None:
         np.testing.assert_allclose(sf.X_canon, sr.X_canon, **tol("fusion", fast))
         np.testing.assert_allclose(sf.C, sr.C, **tol("fusion", fast))
     np.testing.assert_allclose(
-        fst.average_confidence(sf), ref.average_confidence(sr), **tol("fusion", fast)
+        ref.average_confidence(sf), ref.average_confidence(sr), **tol("fusion", fast)
     )
 
 

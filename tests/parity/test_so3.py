@@ -60,7 +60,6 @@ def test_mul_conj_act(fast: str, q1: np.ndarray, q2: np.ndarray, X: np.ndarray) 
 @given(q=stacked(quaternions(), N), v=stacked(points(), N))
 def test_matrices_hat_normalize(fast: str, q: np.ndarray, v: np.ndarray) -> None:
     check(F.to_matrix(q), R.to_matrix(q), fast)
-    check(F.from_matrix(R.to_matrix(q)), R.from_matrix(R.to_matrix(q)), fast)
     check(F.hat(v), R.hat(v), fast)
     check(F.normalize(3.0 * q), R.normalize(3.0 * q), fast)
 
@@ -73,7 +72,6 @@ def _calls(q: np.ndarray, X: np.ndarray) -> dict[str, Callable[[Any], Any]]:
         "conj": lambda m: m.conj(q),
         "act": lambda m: m.act(q, X),
         "to_matrix": lambda m: m.to_matrix(q),
-        "from_matrix": lambda m: m.from_matrix(R.to_matrix(q)),
         "hat": lambda m: m.hat(X),
         "normalize": lambda m: m.normalize(q),
     }
@@ -117,7 +115,6 @@ def test_broadcasting_and_float32_inputs(fast: str) -> None:
         (lambda m: m.conj(np.ones(5)), "^q: .*trailing shape"),
         (lambda m: m.act(np.ones(4), np.ones(4)), "^X: .*trailing shape"),
         (lambda m: m.to_matrix(np.full(4, np.nan)), "^q: .*non-finite"),
-        (lambda m: m.from_matrix(np.ones((4, 4))), "^R: .*trailing shape"),
         (lambda m: m.hat(np.ones(2)), "^v: .*trailing shape"),
     ],
 )

@@ -132,7 +132,7 @@ def test_linearize_block_structure_and_zero_residual_at_truth() -> None:
     np.testing.assert_allclose(Hs[:, 0], Hs[:, 3])  # J_i = -J_j
     np.testing.assert_allclose(Hs[:, 1], -Hs[:, 3])
     assert np.abs(gs).max() < 1e-6 * np.abs(Hs).max()  # zero residual at the truth
-    _, _, cost = backend._linearize_with_cost(
+    _, _, cost = backend.linearize_with_cost(
         T, Xe, C, ii, jj, idx, valid, Q, BackendConfig(), None
     )
     assert cost < 1e-12

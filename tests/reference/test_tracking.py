@@ -160,14 +160,14 @@ def test_driver_stopping_rules() -> None:
     args = (np.zeros((1, 3)), np.zeros((1, 3)), np.ones(1), np.ones(1, bool), sim3.identity())
     cfg = TrackingConfig(max_iters=5)
     # relative decrease 1e-4 < 1e-3 between costs 2 and 3 -> stops after 3 linearisations
-    _, info = tracking._solve_with(fake([10.0, 5.0, 5.0005, 1.0, 1.0], 0.1), *args, cfg, None)
+    _, info = tracking.solve_with(fake([10.0, 5.0, 5.0005, 1.0, 1.0], 0.1), *args, cfg, None)
     assert info.iterations == 3 and info.converged
     # the first cost can never trigger the relative test; a small step does
-    _, info = tracking._solve_with(fake([10.0] * 5, 1e-4), *args, cfg, None)
+    _, info = tracking.solve_with(fake([10.0] * 5, 1e-4), *args, cfg, None)
     assert info.iterations == 1 and info.converged
-    _, info = tracking._solve_with(fake([10.0, 1.0, 0.1, 0.01, 0.001], 0.1), *args, cfg, None)
+    _, info = tracking.solve_with(fake([10.0, 1.0, 0.1, 0.01, 0.001], 0.1), *args, cfg, None)
     assert info.iterations == 5 and not info.converged
-    _, info = tracking._solve_with(fake([0.0, 0.0, 1.0], 0.1), *args, cfg, None)
+    _, info = tracking.solve_with(fake([0.0, 0.0, 1.0], 0.1), *args, cfg, None)
     assert info.iterations == 2 and info.converged  # 0/0 handled as converged
 
 

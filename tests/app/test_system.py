@@ -36,14 +36,6 @@ def _run(source: str, kernels: str = "fast", overrides: tuple[str, ...] = ()):
     return _CACHE[key]
 
 
-def _fast_available() -> bool:
-    try:
-        k = load_kernels("fast")
-    except Exception:
-        return False
-    return not k.fallbacks
-
-
 def test_loop_creates_keyframes_and_tracks_every_frame():
     src, system, meta = _run(LOOP)
     n = len(src.sequence)
@@ -116,7 +108,6 @@ def test_tracking_that_never_recovers_ends_cleanly():
     assert len(system.frame_poses()[0]) == 1 + system.stats.relocalisations
 
 
-@pytest.mark.skipif(not _fast_available(), reason="mslam_fast lacks a kernel of the set")
 def test_fast_and_ref_agree():
     _, ref, _ = _run(TINY, "ref")
     _, fast, _ = _run(TINY, "fast")

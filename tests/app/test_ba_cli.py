@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from mslam_ref import cli
+from mslam import cli
 from mslam_ref.ba import synthetic
 from mslam import bal as io
 
