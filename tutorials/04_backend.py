@@ -58,7 +58,8 @@ rng = np.random.default_rng(2)
 xi = np.concatenate([rng.normal(0, 0.1, (n, 6)), rng.normal(0, 0.05, (n, 1))], axis=1)
 xi[0] = 0.0
 T0 = sim3.retract(T_true, xi)
-Hs, gs = backend.linearize(T0, X, C, ii, jj, idx, valid, Q, backend.BackendConfig(), K)
+graph = backend.pose_graph(X, C, ii, jj, idx, valid, Q, K)
+Hs, gs, cost = backend.linearize(T0, graph)
 A, b = backend.assemble_system(Hs, gs, ii - 1, jj - 1, n - 1)
 fig, ax = plt.subplots(figsize=(4, 4))
 ax.spy(A.toarray(), markersize=1)
@@ -72,7 +73,7 @@ np.testing.assert_allclose(A.toarray(), A.toarray().T, rtol=1e-9, atol=1e-6)
 # Ten iterations (it stops earlier only if the step is shorter than 1e-8).
 
 # %%
-T1, info = backend.solve(T0, X, C, ii, jj, idx, valid, Q, backend.BackendConfig(), K)
+T1, info = backend.solve(T0, graph, backend.BackendConfig())
 
 
 def traj_err(T):

@@ -27,10 +27,9 @@ from mslam_fast._kernels import tracking as KT
 from mslam_fast._runtime import ensure_init
 from mslam_ref import backend as ref_backend
 from mslam_ref import sim3 as _sim3
-from mslam_ref.backend import BackendConfig, BackendInfo
-from mslam_ref.pointmap import check_K
+from mslam_ref.backend import BackendConfig, BackendInfo, PoseGraph
 
-__all__ = ["linearize", "linearize_with_cost", "solve"]
+__all__ = ["linearize", "solve"]
 
 Array = np.ndarray[Any, Any]
 nd = ti.types.ndarray()
@@ -131,27 +130,16 @@ def _params(cfg: BackendConfig, K: Array | None, H: int, W: int) -> Array:
     )
 
 
-def linearize_with_cost(
-    T_WC: Any,
-    X: Any,
-    C: Any,
-    ii: Any,
-    jj: Any,
-    idx: Any,
-    valid: Any,
-    Q: Any,
-    cfg: BackendConfig,
-    K: Any,
+def linearize(
+    T_WC: Any, graph: PoseGraph, cfg: BackendConfig = BackendConfig()  # noqa: B008 (frozen)
 ) -> tuple[Array, Array, float]:
-    """Taichi twin of ``mslam_ref.backend.linearize_with_cost``. The ray constraint of
-    the calibrated mode is applied inside the kernel (idempotent), not on the host."""
-    T_WC, X, C, ii, jj, idx, valid, Q, _ = ref_backend.check_graph(
-        T_WC, X, C, ii, jj, idx, valid, Q, None
-    )
-    K = None if K is None else check_K(K)
+    """Taichi twin of ``mslam_ref.backend.linearize`` (Hs, gs and cost in float64). In
+    calibrated mode the kernel applies the ray constraint itself (idempotent)."""
+    T_WC = ref_backend.check_poses(T_WC, graph)
+    g, K = graph, graph.K_cam
     dtype = ensure_init().dtype
-    n_kf, H, W = X.shape[:3]
-    D, N = len(ii), H * W
+    n_kf, H, W = g.X.shape[:3]
+    D, N = g.n_blocks, H * W
     Hs, gs = np.zeros((D, 4, 7, 7)), np.zeros((D, 2, 7))
     if D == 0:
         return Hs, gs, 0.0
@@ -159,13 +147,13 @@ def linearize_with_cost(
     c = lambda a, s, t=dtype: np.ascontiguousarray(np.reshape(a, s), dtype=t)
     _linearize_k(
         c(T_WC, (n_kf, 8)),
-        c(X, (-1,)),
-        c(C, (n_kf, N)),
-        c(ii, (D,), np.int32),
-        c(jj, (D,), np.int32),
-        c(idx, (D, N), np.int32),
-        c(valid, (D, N), np.uint8),
-        c(Q, (D, N)),
+        c(g.X, (-1,)),
+        c(g.C, (n_kf, N)),
+        c(g.ii, (D,), np.int32),
+        c(g.jj, (D,), np.int32),
+        c(g.idx, (D, N), np.int32),
+        c(g.valid, (D, N), np.uint8),
+        c(g.Q, (D, N)),
         _params(cfg, K, H, W),
         out,
         K is not None,
@@ -176,7 +164,7 @@ def linearize_with_cost(
     H_loc[:, rows, cols] = acc[:, :28]
     H_loc[:, cols, rows] = acc[:, :28]
     # J_j = J_loc M with M = Ad(T_WCi)^-1 (row r of M: e_r M), once per block, not per row
-    M = _sim3.adjoint_inv_apply(np.asarray(T_WC, np.float64)[ii][:, None, :], np.eye(7)[None])
+    M = _sim3.adjoint_inv_apply(T_WC[g.ii][:, None, :], np.eye(7)[None])
     Hjj = np.einsum("dra,drs,dsb->dab", M, H_loc, M)
     g_j = np.einsum("dra,dr->da", M, acc[:, 28:35])
     Hs[:, 0], Hs[:, 1], Hs[:, 2], Hs[:, 3] = Hjj, -Hjj, -Hjj, Hjj
@@ -184,34 +172,8 @@ def linearize_with_cost(
     return Hs, gs, float(acc[:, 35].sum())
 
 
-def linearize(
-    T_WC: Any,
-    X: Any,
-    C: Any,
-    ii: Any,
-    jj: Any,
-    idx: Any,
-    valid: Any,
-    Q: Any,
-    cfg: BackendConfig = BackendConfig(),  # noqa: B008 (frozen, immutable)
-    K: Any = None,
-) -> tuple[Array, Array]:
-    """Taichi twin of ``mslam_ref.backend.linearize`` (Hs, gs in float64)."""
-    Hs, gs, _ = linearize_with_cost(T_WC, X, C, ii, jj, idx, valid, Q, cfg, K)
-    return Hs, gs
-
-
 def solve(
-    T_WC: Any,
-    X: Any,
-    C: Any,
-    ii: Any,
-    jj: Any,
-    idx: Any,
-    valid: Any,
-    Q: Any,
-    cfg: BackendConfig = BackendConfig(),  # noqa: B008
-    K: Any = None,
+    T_WC: Any, graph: PoseGraph, cfg: BackendConfig = BackendConfig()  # noqa: B008
 ) -> tuple[Array, BackendInfo]:
     """Taichi twin of ``mslam_ref.backend.solve``: the reference driver, this linearize."""
-    return ref_backend.solve_with(linearize_with_cost, T_WC, X, C, ii, jj, idx, valid, Q, cfg, K)
+    return ref_backend.solve_with(linearize, T_WC, graph, cfg)

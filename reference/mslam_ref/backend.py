@@ -14,13 +14,15 @@ Sign convention (gn_kernels.cu): ``e = prediction - measurement``, ``J = de/dxi`
 perturbations of the *world* poses, ``g = J^T W e`` and the step ``dx = -H^-1 g``.
 With ``J_loc = de/d(left perturbation at P)``, ``J_j = J_loc Ad(T_WCi)^-1`` and ``J_i = -J_j``.
 
-In calibrated mode (K given) the pointmaps are constrained to their rays *inside*
-:func:`linearize` and :func:`solve`, as upstream's ``solve_GN_calib`` does; the constraint is
-idempotent, so a caller that already constrained them loses nothing.
+The data that stays fixed while the poses move (pointmaps, confidences, the directed blocks
+and, in calibrated mode, the intrinsics) is one :class:`PoseGraph`, built and validated once
+by :func:`pose_graph`. In calibrated mode its pointmaps are constrained to their rays there,
+as upstream's ``solve_GN_calib`` does; the constraint is idempotent, so a caller that already
+constrained them loses nothing.
 
 Public names, in reading order:
-    BackendConfig, BackendInfo, directed_blocks, block_residual_and_jacobian, check_graph,
-    linearize_with_cost, linearize, assemble_system, solve, solve_with
+    BackendConfig, BackendInfo, directed_blocks, block_residual_and_jacobian, PoseGraph,
+    pose_graph, check_poses, linearize, assemble_system, solve, solve_with
 """
 
 from __future__ import annotations
@@ -42,12 +44,13 @@ from mslam_ref.pointmap import check_K
 __all__ = [
     "BackendConfig",
     "BackendInfo",
+    "PoseGraph",
     "assemble_system",
     "block_residual_and_jacobian",
-    "check_graph",
+    "check_poses",
     "directed_blocks",
     "linearize",
-    "linearize_with_cost",
+    "pose_graph",
     "solve",
     "solve_with",
 ]
@@ -212,31 +215,68 @@ def block_residual_and_jacobian(
     return e, -J_j, J_j, w
 
 
-def check_graph(
-    T_WC: Any, X: Any, C: Any, ii: Any, jj: Any, idx: Any, valid: Any, Q: Any, K: Any
-) -> tuple[
-    FloatArray, FloatArray, FloatArray, IntArray, IntArray, IntArray, BoolArray, FloatArray, Any
-]:
-    """Validate the inputs of :func:`linearize` / :func:`solve` (shapes, index ranges, finiteness).
+@dataclasses.dataclass(frozen=True)
+class PoseGraph:
+    """The fixed data of the backend problem: what stays constant while the poses move.
 
-    Returns:
-        the arrays as float64 / int64 / bool, X constrained to its rays when K is given.
+    Build it with :func:`pose_graph`, which validates and converts the arrays.
+
+    Attributes:
+        X: (K, H, W, 3) canonical pointmaps, constrained to their rays when ``K_cam`` is given.
+        C: (K, H, W) average confidences ``C / N``.
+        ii, jj: (D,) int64 keyframe indices of each directed block (i <- j).
+        idx: (D, N) int64 pixel of i matched to each pixel of j; valid: (D, N) bool;
+            Q: (D, N) match quality.
+        K_cam: None for the ray + distance residual, (3, 3) intrinsics for pixel + log-depth.
     """
-    T_WC = sim3.validate(T_WC, "T_WC")
-    X = as_float_array(X, "X", 3)
-    if T_WC.ndim != 2 or X.ndim != 4 or len(X) != len(T_WC):
-        raise ValueError(f"T_WC, X: expected (K, 8) and (K, H, W, 3), got {T_WC.shape}, {X.shape}")
-    C = as_float_array(C, "C")
-    if C.shape != X.shape[:-1]:
-        raise ValueError(f"C: expected shape {X.shape[:-1]}, got {C.shape}")
-    n_kf, n_pix = len(X), X.shape[1] * X.shape[2]
+
+    X: FloatArray
+    C: FloatArray
+    ii: IntArray
+    jj: IntArray
+    idx: IntArray
+    valid: BoolArray
+    Q: FloatArray
+    K_cam: FloatArray | None = None
+
+    @property
+    def n_blocks(self) -> int:
+        """D, the number of directed blocks."""
+        return len(self.ii)
+
+
+def _keyframe_indices(ii: Any, jj: Any, n_kf: int) -> tuple[IntArray, IntArray]:
     ii, jj = (np.asarray(a).reshape(-1) for a in (ii, jj))
     for name, a in (("ii", ii), ("jj", jj)):
         if not np.issubdtype(a.dtype, np.integer) or (len(a) and (a.min() < 0 or a.max() >= n_kf)):
             raise ValueError(f"{name}: expected integer keyframe indices in [0, {n_kf})")
+    if len(jj) != len(ii):
+        raise ValueError(f"jj: expected {len(ii)} entries like ii, got {len(jj)}")
+    return ii.astype(np.int64), jj.astype(np.int64)
+
+
+def pose_graph(
+    X: Any, C: Any, ii: Any, jj: Any, idx: Any, valid: Any, Q: Any, K_cam: Any = None
+) -> PoseGraph:
+    """Validate and convert the backend's fixed data (shapes, index ranges, finiteness).
+
+    Args:
+        as the attributes of :class:`PoseGraph`; X is constrained to its rays
+        (``calib.constrain_points_to_ray``) when ``K_cam`` is given, as upstream's
+        ``solve_GN_calib`` does.
+
+    Raises:
+        ValueError: naming the first argument that is wrong.
+    """
+    X = as_float_array(X, "X", 3)
+    if X.ndim != 4:
+        raise ValueError(f"X: expected (K, H, W, 3), got {X.shape}")
+    C = as_float_array(C, "C")
+    if C.shape != X.shape[:-1]:
+        raise ValueError(f"C: expected shape {X.shape[:-1]}, got {C.shape}")
+    n_pix = X.shape[1] * X.shape[2]
+    ii, jj = _keyframe_indices(ii, jj, len(X))
     D = len(ii)
-    if len(jj) != D:
-        raise ValueError(f"jj: expected {D} entries like ii, got {len(jj)}")
     idx = np.asarray(idx)
     if idx.shape != (D, n_pix) or not np.issubdtype(idx.dtype, np.integer):
         raise ValueError(f"idx: expected integer shape {(D, n_pix)}, got {idx.dtype} {idx.shape}")
@@ -248,47 +288,50 @@ def check_graph(
     Q = as_float_array(Q, "Q")
     if Q.shape != (D, n_pix):
         raise ValueError(f"Q: expected shape {(D, n_pix)}, got {Q.shape}")
-    if K is not None:
-        K = check_K(K)
-        X = calib.constrain_points_to_ray(X, K)
-    return (
-        T_WC,
-        X,
-        C,
-        ii.astype(np.int64),
-        jj.astype(np.int64),
-        idx.astype(np.int64),
-        valid.astype(bool),
-        Q,
-        K,
-    )
+    if K_cam is not None:
+        K_cam = check_K(K_cam)
+        X = calib.constrain_points_to_ray(X, K_cam)
+    return PoseGraph(X, C, ii, jj, idx.astype(np.int64), valid.astype(bool), Q, K_cam)
 
 
-def linearize_with_cost(
-    T_WC: Any,
-    X: Any,
-    C: Any,
-    ii: Any,
-    jj: Any,
-    idx: Any,
-    valid: Any,
-    Q: Any,
-    cfg: BackendConfig,
-    K: Any,
+def check_poses(T_WC: Any, graph: PoseGraph) -> FloatArray:
+    """Validate ``T_WC`` (K, 8) against the graph's K keyframes; returns it as float64."""
+    T_WC = sim3.validate(T_WC, "T_WC")
+    if T_WC.ndim != 2 or len(T_WC) != len(graph.X):
+        raise ValueError(f"T_WC: expected ({len(graph.X)}, 8), got {T_WC.shape}")
+    return T_WC
+
+
+def linearize(
+    T_WC: FloatArray, graph: PoseGraph, cfg: BackendConfig = BackendConfig()
 ) -> tuple[FloatArray, FloatArray, float]:
-    """:func:`linearize` plus the total robust cost ``1/2 sum W e^2`` (what the driver needs).
+    """Hessian blocks, gradients and robust cost of the D directed blocks.
+
+    Paper: §3.5, Eq. (11)-(12). Upstream: gn_kernels.cu::ray_align_kernel /
+    calib_proj_kernel (the per-block reduction). Per pixel and residual component c:
+
+        W_c = huber(w_c e_c) w_c^2        (Huber per component, k = 1.345)
+        H_ii += W_c J_i^T J_i,  H_ij += W_c J_i^T J_j,  H_ji = H_ij^T,  H_jj += W_c J_j^T J_j
+        g_i += W_c e_c J_i,     g_j += W_c e_c J_j,     cost += 1/2 W_c e_c^2
+
+    Args:
+        T_WC: (K, 8) keyframe poses (camera to world).
+        graph: the :class:`PoseGraph` (pointmaps, blocks, intrinsics).
+        cfg: backend configuration.
 
     Returns:
-        Hs: (D, 4, 7, 7); gs: (D, 2, 7); cost: float.
+        Hs: (D, 4, 7, 7) ``[H_ii, H_ij, H_ji, H_jj]``; gs: (D, 2, 7) ``[g_i, g_j]``; cost.
     """
-    T_WC, X, C, ii, jj, idx, valid, Q, K = check_graph(T_WC, X, C, ii, jj, idx, valid, Q, K)
-    D = len(ii)
+    T_WC = check_poses(T_WC, graph)
+    g = graph
+    D = g.n_blocks
     Hs, gs, cost = np.zeros((D, 4, 7, 7)), np.zeros((D, 2, 7)), 0.0
     for d in range(D):  # blocks (few), each vectorised over its N pixels
-        i, j = ii[d], jj[d]
+        i, j = g.ii[d], g.jj[d]
         e, J_i, J_j, w = block_residual_and_jacobian(
-            T_WC[i], T_WC[j], X[i], X[j], C[i], C[j], idx[d], valid[d], Q[d], cfg, K
-        )
+            T_WC[i], T_WC[j], g.X[i], g.X[j], g.C[i], g.C[j], g.idx[d], g.valid[d], g.Q[d], cfg,
+            g.K_cam,
+        )  # fmt: skip
         W = robust.huber_weight(w * e, HUBER_K) * w * w  # (N, c)
         sW = np.sqrt(W)
         A_i, A_j = (sW[..., None] * J_i).reshape(-1, 7), (sW[..., None] * J_j).reshape(-1, 7)
@@ -297,43 +340,6 @@ def linearize_with_cost(
         gs[d] = [A_i.T @ b, A_j.T @ b]
         cost += 0.5 * float(b @ b)
     return Hs, gs, cost
-
-
-def linearize(
-    T_WC: FloatArray,
-    X: FloatArray,
-    C: FloatArray,
-    ii: IntArray,
-    jj: IntArray,
-    idx: IntArray,
-    valid: BoolArray,
-    Q: FloatArray,
-    cfg: BackendConfig = BackendConfig(),
-    K: FloatArray | None = None,
-) -> tuple[FloatArray, FloatArray]:
-    """Hessian blocks and gradients of D directed blocks.
-
-    Paper: §3.5, Eq. (11)-(12). Upstream: gn_kernels.cu::ray_align_kernel /
-    calib_proj_kernel (the per-block reduction). Per pixel and residual component c:
-
-        W_c = huber(w_c e_c) w_c^2        (Huber per component, k = 1.345)
-        H_ii += W_c J_i^T J_i,  H_ij += W_c J_i^T J_j,  H_ji = H_ij^T,  H_jj += W_c J_j^T J_j
-        g_i += W_c e_c J_i,     g_j += W_c e_c J_j
-
-    Args:
-        T_WC: (K, 8) keyframe poses (camera to world).
-        X: (K, H, W, 3) canonical pointmaps (constrained to rays here when K is given).
-        C: (K, H, W) average confidences ``C / N``.
-        ii, jj: (D,) keyframe indices of each directed block (i <- j).
-        idx: (D, N) pixel of i matched to each pixel of j; valid: (D, N); Q: (D, N).
-        cfg: backend configuration.
-        K: None for ray + distance, (3, 3) intrinsics for pixel + log-depth.
-
-    Returns:
-        Hs: (D, 4, 7, 7) ``[H_ii, H_ij, H_ji, H_jj]``; gs: (D, 2, 7) ``[g_i, g_j]``.
-    """
-    Hs, gs, _ = linearize_with_cost(T_WC, X, C, ii, jj, idx, valid, Q, cfg, K)
-    return Hs, gs
 
 
 def assemble_system(
@@ -389,32 +395,21 @@ LinearizeFn = Callable[..., tuple[FloatArray, FloatArray, float]]
 
 
 def solve_with(
-    linearize_fn: LinearizeFn,
-    T_WC: Any,
-    X: Any,
-    C: Any,
-    ii: Any,
-    jj: Any,
-    idx: Any,
-    valid: Any,
-    Q: Any,
-    cfg: BackendConfig,
-    K: Any,
+    linearize_fn: LinearizeFn, T_WC: Any, graph: PoseGraph, cfg: BackendConfig
 ) -> tuple[FloatArray, BackendInfo]:
-    """:func:`solve` with another linearisation (a kernel with :func:`linearize_with_cost`'s
-    signature returning ``(Hs, gs, cost)``), run by the shared driver
-    ``mslam_ref.gauss_newton``."""
-    T_WC, X, C, ii, jj, idx, valid, Q, K = check_graph(T_WC, X, C, ii, jj, idx, valid, Q, K)
-    kf = np.unique(np.concatenate([ii, jj]))
+    """:func:`solve` with another linearisation (a kernel with :func:`linearize`'s signature),
+    run by the shared driver ``mslam_ref.gauss_newton``."""
+    T_WC = check_poses(T_WC, graph)
+    kf = np.unique(np.concatenate([graph.ii, graph.jj]))
     pin = int(cfg.pin)
     if len(kf) <= pin:
         return T_WC.copy(), BackendInfo(0, (), (), 0, tuple(int(k) for k in kf))
-    pos_i, pos_j = np.searchsorted(kf, ii) - pin, np.searchsorted(kf, jj) - pin
+    pos_i, pos_j = np.searchsorted(kf, graph.ii) - pin, np.searchsorted(kf, graph.jj) - pin
     n = len(kf) - pin
     free = kf[pin:]
 
     def step(T: FloatArray) -> tuple[FloatArray | None, float]:
-        Hs, gs, cost = linearize_fn(T, X, C, ii, jj, idx, valid, Q, cfg, K)
+        Hs, gs, cost = linearize_fn(T, graph, cfg)
         A, b = assemble_system(
             np.asarray(Hs, np.float64), np.asarray(gs, np.float64), pos_i, pos_j, n
         )
@@ -432,16 +427,7 @@ def solve_with(
 
 
 def solve(
-    T_WC: FloatArray,
-    X: FloatArray,
-    C: FloatArray,
-    ii: IntArray,
-    jj: IntArray,
-    idx: IntArray,
-    valid: BoolArray,
-    Q: FloatArray,
-    cfg: BackendConfig = BackendConfig(),
-    K: FloatArray | None = None,
+    T_WC: FloatArray, graph: PoseGraph, cfg: BackendConfig = BackendConfig()
 ) -> tuple[FloatArray, BackendInfo]:
     """Global Gauss-Newton over the poses of the keyframes in the graph.
 
@@ -459,9 +445,9 @@ def solve(
     keep their pose.
 
     Args:
-        as :func:`linearize`.
+        T_WC: (K, 8) keyframe poses; graph: the :class:`PoseGraph`; cfg: configuration.
 
     Returns:
         T_WC: (K, 8) updated poses; info: :class:`BackendInfo`.
     """
-    return solve_with(linearize_with_cost, T_WC, X, C, ii, jj, idx, valid, Q, cfg, K)
+    return solve_with(linearize, T_WC, graph, cfg)

@@ -42,16 +42,15 @@ def test_linearize_parity(fast: str, calibrated: bool, seed: int) -> None:
 
     T, X, C, ii, jj, idx, valid, Q = _graph(seed)
     Kc = K if calibrated else None
-    Hr, gr = ref.linearize(T, X, C, ii, jj, idx, valid, Q, ref.BackendConfig(), Kc)
-    Hf, gf = fst.linearize(T, X, C, ii, jj, idx, valid, Q, ref.BackendConfig(), Kc)
+    graph = ref.pose_graph(X, C, ii, jj, idx, valid, Q, Kc)
+    Hr, gr, cr = ref.linearize(T, graph, ref.BackendConfig())
+    Hf, gf, cf = fst.linearize(T, graph, ref.BackendConfig())
     assert Hf.shape == (6, 4, 7, 7) and gf.shape == (6, 2, 7)
     t = tol("backend", fast)
     scale = np.abs(Hr).max(axis=(1, 2, 3), keepdims=True)
     assert np.all(np.abs(Hf - Hr) <= t["atol"] * scale + t["rtol"] * np.abs(Hr))
     gscale = np.abs(gr).max(axis=(1, 2), keepdims=True)
     assert np.all(np.abs(gf - gr) <= t["atol"] * gscale + t["rtol"] * np.abs(gr))
-    _, _, cr = ref.linearize_with_cost(T, X, C, ii, jj, idx, valid, Q, ref.BackendConfig(), Kc)
-    _, _, cf = fst.linearize_with_cost(T, X, C, ii, jj, idx, valid, Q, ref.BackendConfig(), Kc)
     assert cf == pytest.approx(cr, rel=t["rtol"])
 
 
@@ -62,8 +61,9 @@ def test_solve_parity(fast: str, calibrated: bool) -> None:
     T, X, C, ii, jj, idx, valid, Q = _graph(2)
     Kc = K if calibrated else None
     cfg = ref.BackendConfig(max_iters=3)
-    Tr, ir = ref.solve(T, X, C, ii, jj, idx, valid, Q, cfg, Kc)
-    Tf, inf = fst.solve(T, X, C, ii, jj, idx, valid, Q, cfg, Kc)
+    graph = ref.pose_graph(X, C, ii, jj, idx, valid, Q, Kc)
+    Tr, ir = ref.solve(T, graph, cfg)
+    Tf, inf = fst.solve(T, graph, cfg)
     assert inf.iterations == ir.iterations and inf.keyframes == ir.keyframes
     np.testing.assert_array_equal(Tf[0], T[0])
     np.testing.assert_allclose(Tf, Tr, rtol=0, atol=tol("backend", fast)["atol"] * 10)
@@ -73,7 +73,7 @@ def test_empty_and_bad(fast: str) -> None:
     from mslam_fast import backend as fst
 
     T, X, C, ii, jj, idx, valid, Q = _graph(3)
-    Hs, gs = fst.linearize(T, X, C, ii[:0], jj[:0], idx[:0], valid[:0], Q[:0])
-    assert Hs.shape == (0, 4, 7, 7) and gs.shape == (0, 2, 7)
-    with pytest.raises(ValueError, match="idx"):
-        fst.linearize(T, X, C, ii, jj, idx + H * W, valid, Q)
+    Hs, gs, cost = fst.linearize(T, ref.pose_graph(X, C, ii[:0], jj[:0], idx[:0], valid[:0], Q[:0]))
+    assert Hs.shape == (0, 4, 7, 7) and gs.shape == (0, 2, 7) and cost == 0.0
+    with pytest.raises(ValueError, match="T_WC"):
+        fst.linearize(T[:2], ref.pose_graph(X, C, ii, jj, idx, valid, Q))

@@ -126,21 +126,23 @@ def test_linearize_block_structure_and_zero_residual_at_truth() -> None:
     T, X, C, ii, jj, idx, valid, _ = loop_graph()
     Xe = exact_pointmaps(T, X, ii, jj, idx, valid)
     Q = np.full(valid.shape, 2.0)
-    Hs, gs = backend.linearize(T, Xe, C, ii[:3], jj[:3], idx[:3], valid[:3], Q[:3])
+    Hs, gs, _ = backend.linearize(
+        T, backend.pose_graph(Xe, C, ii[:3], jj[:3], idx[:3], valid[:3], Q[:3])
+    )
     assert Hs.shape == (3, 4, 7, 7) and gs.shape == (3, 2, 7)
     np.testing.assert_allclose(Hs[:, 2], np.swapaxes(Hs[:, 1], 1, 2))
     np.testing.assert_allclose(Hs[:, 0], Hs[:, 3])  # J_i = -J_j
     np.testing.assert_allclose(Hs[:, 1], -Hs[:, 3])
     assert np.abs(gs).max() < 1e-6 * np.abs(Hs).max()  # zero residual at the truth
-    _, _, cost = backend.linearize_with_cost(
-        T, Xe, C, ii, jj, idx, valid, Q, BackendConfig(), None
-    )
+    _, _, cost = backend.linearize(T, backend.pose_graph(Xe, C, ii, jj, idx, valid, Q))
     assert cost < 1e-12
     # one block against its definition
     e, J_i, J_j, w = backend.block_residual_and_jacobian(
         T[ii[0]], T[jj[0]], X[ii[0]], X[jj[0]], C[ii[0]], C[jj[0]], idx[0], valid[0], Q[0]
     )
-    Hs1, gs1 = backend.linearize(T, X, C, ii[:1], jj[:1], idx[:1], valid[:1], Q[:1])
+    Hs1, gs1, _ = backend.linearize(
+        T, backend.pose_graph(X, C, ii[:1], jj[:1], idx[:1], valid[:1], Q[:1])
+    )
     Wc = np.where(np.abs(w * e) < 1.345, 1.0, 1.345 / np.maximum(np.abs(w * e), 1e-300)) * w * w
     np.testing.assert_allclose(Hs1[0, 1], np.einsum("nc,nca,ncb->ab", Wc, J_i, J_j), rtol=1e-10)
     np.testing.assert_allclose(
@@ -187,7 +189,8 @@ def test_solve_exact_loop_recovers_the_trajectory() -> None:
     X_all = np.concatenate([Xe, Xe[:1]])
     C_all = np.ones(X_all.shape[:3])
     T0 = _perturb(T_all, 0.03, 1)
-    T1, info = backend.solve(T0, X_all, C_all, ii, jj, idx, valid, np.full(valid.shape, 2.0))
+    graph = backend.pose_graph(X_all, C_all, ii, jj, idx, valid, np.full(valid.shape, 2.0))
+    T1, info = backend.solve(T0, graph)
     e0, e1 = _traj_err(T0[:N_KF], T), _traj_err(T1[:N_KF], T)
     assert e0 > 0.03 and e1 < e0 / 10 and e1 < 1e-6
     np.testing.assert_array_equal(T1[0], T0[0])  # gauge: the first keyframe never moves
@@ -200,9 +203,8 @@ def test_solve_exact_loop_recovers_the_trajectory() -> None:
 def test_solve_calibrated_loop_reduces_the_error_tenfold() -> None:
     T, X, C, ii, jj, idx, valid, K = loop_graph()
     T0 = _perturb(T, 0.1, 2)
-    T1, info = backend.solve(
-        T0, X, C, ii, jj, idx, valid, np.full(valid.shape, 2.0), BackendConfig(), K
-    )
+    graph = backend.pose_graph(X, C, ii, jj, idx, valid, np.full(valid.shape, 2.0), K)
+    T1, info = backend.solve(T0, graph, BackendConfig())
     assert _traj_err(T1, T) < _traj_err(T0, T) / 10  # limited by the pixel quantisation of matches
     np.testing.assert_array_equal(T1[0], T0[0])
     assert info.iterations <= 10 and info.costs[-1] < info.costs[0]
@@ -213,19 +215,18 @@ def test_solve_edge_cases() -> None:
     Q = np.full(valid.shape, 2.0)
     T0 = _perturb(T, 0.01, 4)
     # pin >= number of keyframes in the graph: nothing to do
-    T1, info = backend.solve(
-        T0, X, C, ii[:1], jj[:1], idx[:1], valid[:1], Q[:1], BackendConfig(pin=2)
-    )
+    one_edge = backend.pose_graph(X, C, ii[:1], jj[:1], idx[:1], valid[:1], Q[:1])
+    T1, info = backend.solve(T0, one_edge, BackendConfig(pin=2))
     assert info.iterations == 0
     np.testing.assert_array_equal(T1, T0)
     # no valid pixel: the factorisation fails, the step is zero (upstream), so |dx| = 0 stops
-    T1, info = backend.solve(
-        T0, X, C, ii, jj, idx, np.zeros_like(valid), Q, BackendConfig(max_iters=2)
-    )
+    no_valid = backend.pose_graph(X, C, ii, jj, idx, np.zeros_like(valid), Q)
+    T1, info = backend.solve(T0, no_valid, BackendConfig(max_iters=2))
     assert info.failed == 1 and info.iterations == 1 and info.step_norms == (0.0,)
     np.testing.assert_allclose(T1, T0, atol=1e-15)
     # pin = 2 keeps the first two sorted keyframes fixed
-    T1, _ = backend.solve(T0, X, C, ii, jj, idx, valid, Q, BackendConfig(pin=2, max_iters=1))
+    graph = backend.pose_graph(X, C, ii, jj, idx, valid, Q)
+    T1, _ = backend.solve(T0, graph, BackendConfig(pin=2, max_iters=1))
     np.testing.assert_array_equal(T1[:2], T0[:2])
     assert np.abs(T1[2:] - T0[2:]).max() > 0
 
@@ -234,10 +235,10 @@ def test_bad_inputs() -> None:
     T, X, C, ii, jj, idx, valid, _ = loop_graph()
     Q = np.full(valid.shape, 2.0)
     with pytest.raises(ValueError, match="ii"):
-        backend.linearize(T, X, C, ii + 100, jj, idx, valid, Q)
+        backend.pose_graph(X, C, ii + 100, jj, idx, valid, Q)
     with pytest.raises(ValueError, match="idx"):
-        backend.linearize(T, X, C, ii, jj, idx[:, :-1], valid, Q)
+        backend.pose_graph(X, C, ii, jj, idx[:, :-1], valid, Q)
     with pytest.raises(ValueError, match="C"):
-        backend.linearize(T, X, C[:, :-1], ii, jj, idx, valid, Q)
+        backend.pose_graph(X, C[:, :-1], ii, jj, idx, valid, Q)
     with pytest.raises(ValueError, match="T_WC"):
-        backend.solve(T[:, :7], X, C, ii, jj, idx, valid, Q)
+        backend.solve(T[:, :7], backend.pose_graph(X, C, ii, jj, idx, valid, Q))

@@ -20,6 +20,8 @@ from typing import Any
 
 import numpy as np
 
+from mslam_ref import backend
+
 __all__ = ["add_keyframe_edges", "solve_backend"]
 
 
@@ -64,18 +66,10 @@ def solve_backend(system: Any) -> dict[str, Any] | None:
         return None
     T_WC = system.keyframes.poses()
     X, C = system.keyframes.pointmaps(system._fusion_ref, system.K)
-    T_new, info = system.kernels.backend.solve(
-        T_WC,
-        X,
-        C,
-        blocks.ii,
-        blocks.jj,
-        blocks.idx,
-        blocks.valid,
-        blocks.Q,
-        system.backend_cfg,
-        system.K,
+    graph = backend.pose_graph(
+        X, C, blocks.ii, blocks.jj, blocks.idx, blocks.valid, blocks.Q, system.K
     )
+    T_new, info = system.kernels.backend.solve(T_WC, graph, system.backend_cfg)
     T_new = np.asarray(T_new, dtype=np.float64)
     if not np.all(np.isfinite(T_new)):
         raise FloatingPointError("backend.solve returned non-finite poses")

@@ -27,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from mslam_ref import backend
 from mslam_ref.conventions import BoolArray, FloatArray, IntArray
 from mslam.datasets.frame import Frame
 
@@ -288,20 +289,17 @@ class FactorGraph:
         """
         if not self.edges:
             z = np.zeros(0, dtype=np.int64)
-            return SimpleNamespace(
-                ii=z,
-                jj=z,
-                idx=np.zeros((0, 0), np.int64),
-                valid=np.zeros((0, 0), bool),
-                Q=np.zeros((0, 0)),
-            )
-        ii = [e.i for e in self.edges] + [e.j for e in self.edges]
-        jj = [e.j for e in self.edges] + [e.i for e in self.edges]
-        idx = np.stack([e.idx_i2j for e in self.edges] + [e.idx_j2i for e in self.edges])
-        valid = np.stack(
-            [e.valid_match_j for e in self.edges] + [e.valid_match_i for e in self.edges]
+            empty = (np.zeros((0, 0), np.int64), np.zeros((0, 0), bool), np.zeros((0, 0)))
+            return SimpleNamespace(ii=z, jj=z, idx=empty[0], valid=empty[1], Q=empty[2])
+        stack = lambda name: np.stack([getattr(e, name) for e in self.edges])
+        ii, jj, idx, valid, Q = backend.directed_blocks(
+            [e.i for e in self.edges],
+            [e.j for e in self.edges],
+            stack("idx_i2j"),
+            stack("idx_j2i"),
+            stack("valid_match_j"),
+            stack("valid_match_i"),
+            stack("Q_j"),
+            stack("Q_i"),
         )
-        Q = np.stack([e.Q_j for e in self.edges] + [e.Q_i for e in self.edges])
-        return SimpleNamespace(
-            ii=np.asarray(ii, np.int64), jj=np.asarray(jj, np.int64), idx=idx, valid=valid, Q=Q
-        )
+        return SimpleNamespace(ii=ii, jj=jj, idx=idx, valid=valid, Q=Q)

@@ -26,9 +26,10 @@ Jacobi scaling of Ceres (``LMConfig.jacobi_scaling``).
 ``dx^T (lam dx + b)`` is the decrease of the Gauss-Newton model ``F - m(dx)`` at the damped step:
 with ``(H + lam I) dx = b``, ``2 dx^T b - dx^T H dx = dx^T (lam dx + b)``.
 
-The driver is shared by both kernel sets: ``kernels`` is ``mslam_ref.ba`` or ``mslam_fast.ba``
-(namespaces with ``cameras`` and ``schur`` modules); the reduced Cholesky always runs on the host
-(``mslam_ref.ba.schur.solve_reduced``).
+The driver is shared by both kernel sets: ``kernels`` is any object with ``cameras`` and
+``schur`` modules — those of ``mslam_ref.ba`` (the default) or their Taichi twins in
+``mslam_fast.ba`` (the application's kernel set passes one); the reduced Cholesky always runs
+on the host (``mslam_ref.ba.schur.solve_reduced``).
 
 Public names, in reading order: LMConfig, LMResult, PROFILE_KEYS, robust_chi2, solve_damped,
 optimize.
@@ -42,6 +43,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -125,9 +127,10 @@ class LMResult:
 
 
 def _default_kernels() -> Any:
-    import mslam_ref.ba as ref_ba
+    """The reference kernels (``cameras`` and ``schur`` of ``mslam_ref.ba``)."""
+    from mslam_ref.ba import cameras
 
-    return ref_ba
+    return SimpleNamespace(cameras=cameras, schur=_schur)
 
 
 def robust_chi2(problem: Any, kernels: Any, cams: FloatArray, points: FloatArray) -> float:
