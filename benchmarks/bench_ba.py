@@ -34,8 +34,8 @@ sys.path[:0] = [str(ROOT / "reference"), str(ROOT / "fast"), str(ROOT / "benchma
 
 from _results import table, write_section  # noqa: E402
 
+from mslam import bal as io  # noqa: E402
 from mslam_ref.ba import cameras, lm, synthetic  # noqa: E402
-from mslam import bal as io
 
 DATA = ROOT.parent / "shared" / "data" / "ba" / "problem-49-7776-pre.txt"
 CERES_NATIVE = "0.7-1.1 s, 32 it., 13344.32 (native Ceres SPARSE_SCHUR, measured by the lead)"
@@ -159,8 +159,9 @@ def main() -> None:
     ap.add_argument("--no-pyceres", action="store_true")
     args = ap.parse_args()
     problem = io.read_bal(DATA)
-    import mslam_fast.ba as fast_ba
-    import mslam_ref.ba as ref_ba
+    from mslam.kernels import load_kernels
+
+    fast_ba, ref_ba = load_kernels("fast").ba, load_kernels("ref").ba
 
     rows = []
     load0 = os.getloadavg()[0]

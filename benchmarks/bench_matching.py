@@ -37,9 +37,9 @@ from scipy.spatial import cKDTree
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _results import best_of, table, write_section
 
-from mslam_ref import matching as ref
-from mslam.priors.synthetic import SyntheticPrior
 from mslam.datasets.synthetic import make_sequence
+from mslam.priors.synthetic import SyntheticPrior
+from mslam_ref import matching as ref
 
 SIZES = [(512, 384), (224, 160)]
 FULL, PROJ = ref.MatchingConfig(), ref.MatchingConfig(radius=0)

@@ -107,7 +107,9 @@ def test_fast_uses_only_public_reference_names() -> None:
         for node in ast.walk(tree):
             if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("mslam_ref"):
                 for a in node.names:
-                    if a.name.startswith("_") or any(p.startswith("_") for p in node.module.split(".")):
+                    if a.name.startswith("_") or any(
+                        p.startswith("_") for p in node.module.split(".")
+                    ):
                         bad.append(f"{name}: from {node.module} import {a.name}")
                     if f"{node.module}.{a.name}" in mods:
                         ref_aliases.add(a.asname or a.name)

@@ -32,12 +32,12 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from mslam_ref import sim3, so3
 from mslam.datasets.images import resize_img
-from mslam_ref.pointmap import backproject, camera_rays, intrinsics_after_resize
+from mslam.datasets.synthetic import make_sequence
 from mslam.priors import check_prediction
 from mslam.priors.synthetic import SyntheticPrior, SyntheticPriorConfig
-from mslam.datasets.synthetic import make_sequence
+from mslam_ref import sim3, so3
+from mslam_ref.pointmap import backproject, camera_rays, intrinsics_after_resize
 
 FIGS = Path(tempfile.mkdtemp(prefix="mslam_tutorial01_"))
 

@@ -34,10 +34,10 @@ import time
 import matplotlib.pyplot as plt
 import numpy as np
 
+from mslam.datasets.synthetic import make_sequence
+from mslam.priors.descriptors import patch_descriptors
 from mslam_ref import matching, sim3
 from mslam_ref.pointmap import backproject, project
-from mslam.priors.descriptors import patch_descriptors
-from mslam.datasets.synthetic import make_sequence
 
 np.set_printoptions(precision=4, suppress=True)
 

@@ -15,9 +15,9 @@
 import matplotlib.pyplot as plt
 import numpy as np
 
+from mslam.datasets.synthetic import make_sequence
 from mslam_ref import fusion, sim3, tracking
 from mslam_ref.pointmap import backproject
-from mslam.datasets.synthetic import make_sequence
 
 seq = make_sequence("loop", n_frames=60, width=96, height=72, seed=0)
 K, H, W = seq.K, seq.height, seq.width

@@ -12,9 +12,9 @@
 import matplotlib.pyplot as plt
 import numpy as np
 
+from mslam.datasets.synthetic import make_sequence
 from mslam_ref import backend, sim3
 from mslam_ref.pointmap import backproject
-from mslam.datasets.synthetic import make_sequence
 
 n, W, H = 10, 64, 48
 seq = make_sequence("loop", n_frames=n, width=W, height=H, seed=0)

@@ -24,11 +24,11 @@ os.environ.setdefault("MPLBACKEND", "Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from mslam_ref import sim3
 from mslam import evaluate
 from mslam.config import load_config
 from mslam.kernels import load_kernels
 from mslam.system import open_source, run_slam
+from mslam_ref import sim3
 
 # %% [markdown]
 # ## Run

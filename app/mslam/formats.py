@@ -32,8 +32,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from mslam_ref import so3
 from mslam.commands import write_atomic
+from mslam_ref import so3
 from mslam_ref.conventions import FloatArray, as_float_array
 
 __all__ = [

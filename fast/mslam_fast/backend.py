@@ -131,7 +131,9 @@ def _params(cfg: BackendConfig, K: Array | None, H: int, W: int) -> Array:
 
 
 def linearize(
-    T_WC: Any, graph: PoseGraph, cfg: BackendConfig = BackendConfig()  # noqa: B008 (frozen)
+    T_WC: Any,
+    graph: PoseGraph,
+    cfg: BackendConfig = BackendConfig(),  # noqa: B008 (frozen)
 ) -> tuple[Array, Array, float]:
     """Taichi twin of ``mslam_ref.backend.linearize`` (Hs, gs and cost in float64). In
     calibrated mode the kernel applies the ray constraint itself (idempotent)."""
@@ -173,7 +175,9 @@ def linearize(
 
 
 def solve(
-    T_WC: Any, graph: PoseGraph, cfg: BackendConfig = BackendConfig()  # noqa: B008
+    T_WC: Any,
+    graph: PoseGraph,
+    cfg: BackendConfig = BackendConfig(),  # noqa: B008
 ) -> tuple[Array, BackendInfo]:
     """Taichi twin of ``mslam_ref.backend.solve``: the reference driver, this linearize."""
     return ref_backend.solve_with(linearize, T_WC, graph, cfg)

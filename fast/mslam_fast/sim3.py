@@ -15,21 +15,14 @@ import taichi as ti
 
 from mslam_fast._kernels import sim3 as K
 from mslam_fast._runtime import ensure_init, flat, prepare, run_batch
-from mslam_ref import sim3 as _ref
 from mslam_ref.conventions import as_float_array
 
-__all__ = [
-    "act",
-    "act_and_jacobian",
-    "adjoint",
-    "adjoint_inv_apply",
-    "exp",
-    "inv",
-    "log",
-    "mul",
-    "retract",
-    "to_matrix",
+# fmt: off
+__all__ = [  # in reading order
+    "exp", "log", "mul", "inv", "act", "act_and_jacobian", "adjoint",
+    "adjoint_inv_apply", "retract", "to_matrix",
 ]
+# fmt: on
 
 Array = np.ndarray[Any, Any]
 nd = ti.types.ndarray()
@@ -129,8 +122,6 @@ def _T(T: Any, name: str = "T") -> Array:
         arr = arr.copy()
         arr[..., 3:7] /= np.sqrt(n2)[..., None]
     return np.ascontiguousarray(arr, dtype=ensure_init().dtype)
-
-
 
 
 def exp(xi: Any) -> Array:

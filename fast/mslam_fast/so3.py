@@ -15,8 +15,7 @@ import numpy as np
 import taichi as ti
 
 from mslam_fast._kernels import sim3 as K
-from mslam_fast._runtime import ensure_init, prepare, run_batch
-from mslam_ref import so3 as _ref
+from mslam_fast._runtime import prepare, run_batch
 
 __all__ = [
     "act",

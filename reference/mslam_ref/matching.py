@@ -314,11 +314,11 @@ def _initial_pixels(idx_init: IntArray | None, B: int, H: int, W: int) -> FloatA
 
 
 def match(
-    X11: Any,
-    X21: Any,
-    D11: Any,
-    D21: Any,
-    idx_init: Any = None,
+    X11: FloatArray,
+    X21: FloatArray,
+    D11: FloatArray,
+    D21: FloatArray,
+    idx_init: IntArray | None = None,
     cfg: MatchingConfig = MatchingConfig(),
 ) -> tuple[IntArray, BoolArray]:
     """Match every pixel of image 2 to a pixel of image 1 (iterative projection + refinement).

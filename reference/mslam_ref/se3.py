@@ -32,20 +32,12 @@ import numpy as np
 from mslam_ref import so3
 from mslam_ref.conventions import FloatArray, as_float_array
 
-__all__ = [
-    "EPS_SE3",
-    "act",
-    "act_and_jacobian",
-    "exp",
-    "from_matrix",
-    "identity",
-    "inv",
-    "log",
-    "mul",
-    "retract",
-    "to_matrix",
-    "validate",
+# fmt: off
+__all__ = [  # in reading order
+    "EPS_SE3", "identity", "exp", "log", "mul", "inv", "act",
+    "act_and_jacobian", "retract", "to_matrix", "from_matrix", "validate",
 ]
+# fmt: on
 
 #: Small-angle switch of the Rodrigues coefficients (g2o / cuda-bundle-adjustment use 1e-5).
 EPS_SE3 = 1e-5

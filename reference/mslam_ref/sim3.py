@@ -31,21 +31,12 @@ import numpy as np
 from mslam_ref import so3
 from mslam_ref.conventions import EPS_EXP, SIM3_IDENTITY, FloatArray, as_float_array
 
-__all__ = [
-    "act",
-    "act_and_jacobian",
-    "adjoint",
-    "adjoint_inv_apply",
-    "exp",
-    "from_matrix",
-    "identity",
-    "inv",
-    "log",
-    "mul",
-    "retract",
-    "to_matrix",
-    "validate",
+# fmt: off
+__all__ = [  # in reading order
+    "identity", "exp", "log", "mul", "inv", "act", "act_and_jacobian",
+    "adjoint", "adjoint_inv_apply", "retract", "to_matrix", "from_matrix", "validate",
 ]
+# fmt: on
 
 
 def validate(T: FloatArray, name: str = "T") -> FloatArray:

@@ -7,9 +7,9 @@ from pathlib import Path
 
 import pytest
 
+from mslam import bal as io
 from mslam import cli
 from mslam_ref.ba import synthetic
-from mslam import bal as io
 
 
 def test_cli_ba_json_and_out(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mslam_ref.ba import synthetic
 from mslam import bal as io
+from mslam_ref.ba import synthetic
 
 
 def test_bal_round_trip(tmp_path: Path) -> None:

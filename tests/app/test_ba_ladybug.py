@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mslam_ref.ba import lm
 from mslam import bal as io
+from mslam_ref.ba import lm
 
 CERES_FINAL = 13344.32
 ITERATION_CAP = 50

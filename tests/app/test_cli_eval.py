@@ -7,9 +7,9 @@ import json
 import numpy as np
 import pytest
 
-from mslam_ref import sim3
 from mslam import formats as io
 from mslam.cli import main
+from mslam_ref import sim3
 
 
 @pytest.fixture

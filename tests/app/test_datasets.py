@@ -9,7 +9,6 @@ import cv2
 import numpy as np
 import pytest
 
-from mslam_ref import sim3
 from mslam.cli import main
 from mslam.datasets import (
     Calibration,
@@ -22,6 +21,7 @@ from mslam.datasets import (
 )
 from mslam.datasets.readers import encode_png
 from mslam.datasets.synthetic import make_sequence
+from mslam_ref import sim3
 
 W, H = 64, 48
 

@@ -12,8 +12,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from mslam import evaluate as ev
-from mslam_ref import sim3
 from mslam import formats as io
+from mslam_ref import sim3
 
 # (ground truth, estimate, align, matched, n_est, scale or None, rmse, mean, median, max)
 EVO_ROWS = [

@@ -10,8 +10,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from mslam_ref import sim3
 from mslam import formats as io
+from mslam_ref import sim3
 
 
 def _poses(rng: np.random.Generator, n: int, scale: bool = True) -> np.ndarray:

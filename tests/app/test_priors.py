@@ -7,12 +7,12 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from mslam_ref import sim3
-from mslam_ref.pointmap import backproject
+from mslam.datasets.synthetic import make_sequence
 from mslam.priors import DESC_DIM, PairPrediction, Prior, check_prediction
 from mslam.priors.descriptors import patch_descriptors
 from mslam.priors.synthetic import SyntheticPrior, SyntheticPriorConfig
-from mslam.datasets.synthetic import make_sequence
+from mslam_ref import sim3
+from mslam_ref.pointmap import backproject
 
 W, H = 64, 48
 

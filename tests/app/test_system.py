@@ -9,11 +9,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mslam_ref import sim3
 from mslam.config import load_config
-from mslam.system.graph import FactorGraph, KeyframeStore
 from mslam.kernels import load_kernels
 from mslam.system import Mode, open_source, run_slam
+from mslam.system.graph import FactorGraph, KeyframeStore
+from mslam_ref import sim3
 
 LOOP = "synthetic:loop:24:64x48"
 JUMP = "synthetic:jump:32:64x48"
@@ -81,8 +81,8 @@ def test_run_is_deterministic():
 
 
 def test_jump_relocalises_and_finishes():
-    from mslam_ref.synthetic import jump_indices
     from mslam.system.outputs import evaluate_run
+    from mslam_ref.synthetic import jump_indices
 
     src, system, _ = _run(JUMP)
     n = len(src.sequence)

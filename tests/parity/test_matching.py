@@ -46,8 +46,8 @@ def analytic_pair(W: int = 64, H: int = 48, seed: int = 0, F: int = 24):
 
 def prior_pair(W: int = 96, H: int = 72, j: int = 1, seed: int = 0):
     """A noisy MASt3R-like pair from the synthetic prior (depth noise, outliers, Sim(3) error)."""
-    from mslam.priors.synthetic import SyntheticPrior, SyntheticPriorConfig
     from mslam.datasets.synthetic import make_sequence
+    from mslam.priors.synthetic import SyntheticPrior, SyntheticPriorConfig
 
     seq = make_sequence("loop", n_frames=40, width=W, height=H, seed=0)
     P = SyntheticPrior(seq, SyntheticPriorConfig(seed=seed)).pair(seq[0], seq[j])

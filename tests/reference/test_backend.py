@@ -10,10 +10,10 @@ import pytest
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
+from mslam.datasets.synthetic import make_sequence
 from mslam_ref import backend, sim3
 from mslam_ref.backend import BackendConfig
 from mslam_ref.pointmap import backproject
-from mslam.datasets.synthetic import make_sequence
 
 N_KF, W, H = 10, 64, 48
 

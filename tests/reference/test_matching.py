@@ -60,8 +60,8 @@ def analytic_pair(W: int = 64, H: int = 48, seed: int = 0, F: int = 24):
 def synthetic_pair(W: int = 96, H: int = 72, j: int = 1, path: str = "loop"):
     """Exact pointmaps of two frames of a synthetic room (ground-truth depth and poses), patch
     descriptors of the rendered images; visibility = inside and not occluded in image 1."""
-    from mslam.priors.descriptors import patch_descriptors
     from mslam.datasets.synthetic import make_sequence
+    from mslam.priors.descriptors import patch_descriptors
 
     seq = make_sequence(path, n_frames=40, width=W, height=H, seed=0)
     f1, f2 = seq[0], seq[j]

@@ -229,9 +229,9 @@ def test_revisited_texture_view_ranks_first() -> None:
 def test_synthetic_room_revisit_is_retrieved() -> None:
     """The ``jump`` path retraces its first arc: each retraced keyframe retrieves a keyframe
     of the same place (view distance < 0.5 m) as its best non-recent candidate."""
-    from mslam_ref import sim3
-    from mslam.priors.synthetic import SyntheticPrior
     from mslam.datasets.synthetic import make_sequence
+    from mslam.priors.synthetic import SyntheticPrior
+    from mslam_ref import sim3
 
     n = 40
     seq = make_sequence("jump", n_frames=n, width=96, height=72, seed=0)

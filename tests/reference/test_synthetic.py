@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from mslam.datasets.synthetic import make_sequence
 from mslam_ref import sim3
 from mslam_ref.pointmap import backproject
 from mslam_ref.synthetic import PATHS, camera_path, cast_rays, jump_indices, make_scene, render
-from mslam.datasets.synthetic import make_sequence
 
 W, H = 64, 48
 

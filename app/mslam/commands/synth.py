@@ -41,9 +41,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Render and write the sequence; prints a JSON summary."""
+    from mslam.datasets.synthetic import make_sequence
     from mslam.datasets.tum import write_tum
     from mslam_ref.synthetic import PATHS, jump_indices
-    from mslam.datasets.synthetic import make_sequence
 
     name = args.name.removeprefix("synthetic:")
     if name not in PATHS:

@@ -19,10 +19,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from mslam_ref.conventions import FloatArray
 from mslam.datasets.frame import Frame, FrameSequence
-from mslam.datasets.readers import Calibration, read_calibration, read_depth, read_rgb
 from mslam.datasets.images import optimal_intrinsics, undistort_maps
+from mslam.datasets.readers import Calibration, read_calibration, read_depth, read_rgb
+from mslam_ref.conventions import FloatArray
 from mslam_ref.pointmap import scale_intrinsics
 
 __all__ = ["FileSequence", "apply_calibration"]

@@ -24,7 +24,6 @@ import cv2
 import numpy as np
 import yaml
 
-from mslam_ref import sim3, so3
 from mslam.datasets.files import FileSequence, apply_calibration
 from mslam.datasets.frame import Frame, FrameSequence
 from mslam.datasets.readers import (
@@ -34,6 +33,7 @@ from mslam.datasets.readers import (
     read_pose_matrix,
     read_text_rows,
 )
+from mslam_ref import sim3, so3
 
 __all__ = ["VIDEO_SUFFIXES", "VideoSequence", "load_7scenes", "load_euroc", "load_image_folder"]
 

@@ -17,7 +17,6 @@ from pathlib import Path
 
 import numpy as np
 
-from mslam_ref.conventions import FloatArray
 from mslam.datasets.files import FileSequence, apply_calibration
 from mslam.datasets.frame import FrameSequence
 from mslam.datasets.readers import (
@@ -26,6 +25,7 @@ from mslam.datasets.readers import (
     encode_png,
     read_text_rows,
 )
+from mslam_ref.conventions import FloatArray
 
 __all__ = ["TUM_CALIB", "load_tum", "read_trajectory", "write_tum"]
 

@@ -22,8 +22,8 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from mslam_ref.conventions import FloatArray
 from mslam.datasets.frame import Frame
+from mslam_ref.conventions import FloatArray
 
 __all__ = ["DESC_DIM", "PairPrediction", "Prior", "check_prediction"]
 

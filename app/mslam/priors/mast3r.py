@@ -33,11 +33,11 @@ from typing import Any
 
 import numpy as np
 
-from mslam_ref.conventions import FloatArray
 from mslam.datasets.frame import Frame
 from mslam.datasets.images import resize_img
-from mslam_ref.pointmap import intrinsics_after_resize, network_input
 from mslam.priors.base import PairPrediction
+from mslam_ref.conventions import FloatArray
+from mslam_ref.pointmap import intrinsics_after_resize, network_input
 
 __all__ = [
     "CHECKPOINT_ENV",

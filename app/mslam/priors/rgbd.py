@@ -39,12 +39,12 @@ import cv2
 import numpy as np
 from scipy import ndimage
 
-from mslam_ref import sim3, so3
-from mslam_ref.conventions import FloatArray
 from mslam.datasets.frame import Frame
-from mslam_ref.pointmap import backproject, project, scale_intrinsics
 from mslam.priors.base import PairPrediction
 from mslam.priors.descriptors import DescriptorConfig, patch_descriptors
+from mslam_ref import sim3, so3
+from mslam_ref.conventions import FloatArray
+from mslam_ref.pointmap import backproject, project, scale_intrinsics
 
 __all__ = ["FAILED_Q", "RGBDPrior", "RGBDPriorConfig", "fill_depth"]
 

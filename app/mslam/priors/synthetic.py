@@ -38,12 +38,12 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from mslam_ref import sim3
-from mslam_ref.conventions import FloatArray
 from mslam.datasets.frame import Frame
-from mslam_ref.pointmap import backproject, project, scale_intrinsics
 from mslam.priors.base import PairPrediction
 from mslam.priors.descriptors import DescriptorConfig, patch_descriptors
+from mslam_ref import sim3
+from mslam_ref.conventions import FloatArray
+from mslam_ref.pointmap import backproject, project, scale_intrinsics
 
 __all__ = ["SyntheticPrior", "SyntheticPriorConfig"]
 

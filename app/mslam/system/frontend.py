@@ -30,14 +30,14 @@ from typing import Any
 
 import numpy as np
 
-from mslam_ref import sim3
 from mslam.config import SlamConfig
-from mslam_ref.conventions import FloatArray
 from mslam.datasets.frame import Frame
-from mslam.system.graph import FactorGraph, Keyframe, KeyframeStore
 from mslam.kernels import KernelSet
 from mslam.system.backend_step import add_keyframe_edges, solve_backend
+from mslam.system.graph import FactorGraph, Keyframe, KeyframeStore
 from mslam.system.retrieval_features import RetrievalIndex
+from mslam_ref import sim3
+from mslam_ref.conventions import FloatArray
 
 __all__ = ["FramePose", "Mode", "RunStats", "SlamSystem"]
 

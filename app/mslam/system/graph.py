@@ -27,9 +27,9 @@ from typing import Any
 
 import numpy as np
 
+from mslam.datasets.frame import Frame
 from mslam_ref import backend
 from mslam_ref.conventions import BoolArray, FloatArray, IntArray
-from mslam.datasets.frame import Frame
 
 __all__ = ["Edge", "FactorGraph", "Keyframe", "KeyframeStore", "match_pairs"]
 

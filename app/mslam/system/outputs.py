@@ -30,8 +30,8 @@ from typing import Any
 import cv2
 import numpy as np
 
-from mslam_ref import sim3
 from mslam.commands import write_atomic
+from mslam_ref import sim3
 
 __all__ = [
     "C_CONF_THRESHOLD",

@@ -17,8 +17,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from mslam_ref import sim3
 from mslam.datasets.frame import Frame
+from mslam_ref import sim3
 
 __all__ = ["relocalise"]
 

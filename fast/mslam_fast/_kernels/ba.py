@@ -6,6 +6,8 @@ run over observations are accumulated by the callers in ``ti.f64`` locals.
 
 import taichi as ti
 
+from mslam_fast._kernels.sim3 import quat_to_matrix
+
 EPS_ROT = 1e-5  # small-angle switch of the Rodrigues coefficients (g2o / cuda-ba)
 
 
@@ -26,19 +28,6 @@ def rodrigues(w):
         a2 = (1.0 - ti.cos(th)) / (th * th)
     W = hat(w)
     return ti.Matrix.identity(float, 3) + a1 * W + a2 * (W @ W)
-
-
-@ti.func
-def quat_to_matrix(q):
-    """Rotation matrix of the unit quaternion [qx, qy, qz, qw]."""
-    x, y, z, w = q[0], q[1], q[2], q[3]
-    return ti.Matrix(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-        ]
-    )
 
 
 @ti.func

@@ -117,15 +117,7 @@ def _pin_args(poses, intrinsics, points, obs_cam, obs_pt, meas, is_stereo):
             prepare(is_stereo, "is_stereo", None))  # fmt: skip
 
 
-def pinhole_residuals(
-    poses: Any,
-    intrinsics: Any,
-    points: Any,
-    obs_cam: Any,
-    obs_pt: Any,
-    meas: Any,
-    is_stereo: Any,
-) -> Array:
+def pinhole_residuals(poses, intrinsics, points, obs_cam, obs_pt, meas, is_stereo) -> Array:
     """Taichi twin of ``mslam_ref.ba.cameras.pinhole_residuals`` (parallel over O)."""
     args = _pin_args(poses, intrinsics, points, obs_cam, obs_pt, meas, is_stereo)
     r = _empty(len(args[3]), 3)
@@ -135,13 +127,7 @@ def pinhole_residuals(
 
 
 def pinhole_linearize(
-    poses: Any,
-    intrinsics: Any,
-    points: Any,
-    obs_cam: Any,
-    obs_pt: Any,
-    meas: Any,
-    is_stereo: Any,
+    poses, intrinsics, points, obs_cam, obs_pt, meas, is_stereo
 ) -> tuple[Array, Array, Array]:
     """Taichi twin of ``mslam_ref.ba.cameras.pinhole_linearize`` (parallel over O, fused)."""
     args = _pin_args(poses, intrinsics, points, obs_cam, obs_pt, meas, is_stereo)

@@ -64,14 +64,9 @@ def _pinhole_proj(
 
 
 def pinhole_residuals(
-    poses: FloatArray,
-    intrinsics: FloatArray,
-    points: FloatArray,
-    obs_cam: IntArray,
-    obs_pt: IntArray,
-    meas: FloatArray,
-    is_stereo: FloatArray,
-) -> FloatArray:
+    poses: FloatArray, intrinsics: FloatArray, points: FloatArray,
+    obs_cam: IntArray, obs_pt: IntArray, meas: FloatArray, is_stereo: FloatArray,
+) -> FloatArray:  # fmt: skip
     """Residuals ``projection - measurement`` of mono and stereo edges.
 
     Upstream: cuda_block_solver.cu (computeActiveErrors), g2o EdgeSE3ProjectXYZ::computeError.
@@ -95,14 +90,9 @@ def pinhole_residuals(
 
 
 def pinhole_linearize(
-    poses: FloatArray,
-    intrinsics: FloatArray,
-    points: FloatArray,
-    obs_cam: IntArray,
-    obs_pt: IntArray,
-    meas: FloatArray,
-    is_stereo: FloatArray,
-) -> tuple[FloatArray, FloatArray, FloatArray]:
+    poses: FloatArray, intrinsics: FloatArray, points: FloatArray,
+    obs_cam: IntArray, obs_pt: IntArray, meas: FloatArray, is_stereo: FloatArray,
+) -> tuple[FloatArray, FloatArray, FloatArray]:  # fmt: skip
     """Residuals and their Jacobians for the pose (left increment) and the point.
 
     Upstream: g2o types_six_dof_expmap.cpp::EdgeSE3ProjectXYZ::linearizeOplus and
