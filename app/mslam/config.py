@@ -18,7 +18,7 @@ Rules:
   applied last.
 
 Public names, in reading order:
-    SlamConfig, DatasetConfig, RetrievalSettings, RelocConfig, load_config, parse_override,
+    SlamConfig, DatasetConfig, RelocConfig, load_config, parse_override,
     config_to_dict, CONFIG_DIR
 """
 
@@ -38,7 +38,6 @@ __all__ = [
     "CONFIG_DIR",
     "DatasetConfig",
     "RelocConfig",
-    "RetrievalSettings",
     "SlamConfig",
     "config_to_dict",
     "load_config",
@@ -88,14 +87,6 @@ class DatasetConfig:
 
 
 @dataclass(frozen=True)
-class RetrievalSettings:
-    """``retrieval.*`` keys: candidates per query and the score threshold (spec §7.2)."""
-
-    k: int = 3
-    min_thresh: float = 5e-3
-
-
-@dataclass(frozen=True)
 class RelocConfig:
     """``reloc.*`` keys (spec §9): the stricter match fraction and all-or-nothing acceptance."""
 
@@ -111,7 +102,7 @@ class SlamConfig:
         use_calib: calibrated mode (pixel + log-depth residuals, points on known rays).
         single_thread: upstream's sequential evaluation mode; this implementation is always
             single-process, the key is kept for compatibility.
-        dataset, retrieval, reloc: typed sections.
+        dataset, reloc: typed sections of the application.
         sections: the resolved YAML as nested plain dicts (``matching``, ``tracking``,
             ``local_opt``, ...), the source of :meth:`matching`, :meth:`tracking`, ...
         sources: the files read, parent first.
@@ -120,7 +111,6 @@ class SlamConfig:
     use_calib: bool = False
     single_thread: bool = True
     dataset: DatasetConfig = field(default_factory=DatasetConfig)
-    retrieval: RetrievalSettings = field(default_factory=RetrievalSettings)
     reloc: RelocConfig = field(default_factory=RelocConfig)
     sections: Mapping[str, Any] = field(default_factory=dict)
     sources: tuple[str, ...] = ()
@@ -148,6 +138,11 @@ class SlamConfig:
     def backend(self) -> Any:
         """``mslam_ref.backend.BackendConfig`` from ``local_opt.*``."""
         return self._typed("backend", "BackendConfig", "local_opt")
+
+    def retrieval(self) -> Any:
+        """``mslam_ref.retrieval.RetrievalConfig`` from ``retrieval.*`` (the one place the
+        retrieval settings live; keys not in the YAML keep the dataclass defaults)."""
+        return self._typed("retrieval", "RetrievalConfig", "retrieval")
 
 
 def _read_yaml(path: Path) -> dict[str, Any]:
@@ -306,7 +301,6 @@ def load_config(path: str | Path | None = None, overrides: Iterable[str] = ()) -
         use_calib=bool(data["use_calib"]),
         single_thread=bool(data["single_thread"]),
         dataset=ds,
-        retrieval=RetrievalSettings(**data["retrieval"]),
         reloc=RelocConfig(**data["reloc"]),
         sections={k: v for k, v in data.items() if isinstance(v, dict)},
         sources=tuple(files),

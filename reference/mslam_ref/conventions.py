@@ -23,6 +23,7 @@ import numpy.typing as npt
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
 BoolArray = npt.NDArray[np.bool_]
+U32Array = npt.NDArray[np.uint32]
 
 #: Threshold of the small-angle / small-sigma series in Exp and Log (lietorch's EPS).
 EPS_EXP = 1e-6

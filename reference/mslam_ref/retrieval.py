@@ -28,8 +28,8 @@ otherwise every image shares every word and unrelated places score like revisits
 evaluation.md gives the measured scores.
 
 Public names, in reading order:
-    RetrievalConfig, pool_cell, select_features, train_codebook, quantize, pack_bits, hamming, aggregate,
-    RetrievalDatabase
+    RetrievalConfig, pool_cell, select_features, train_codebook, quantize, pack_bits, hamming,
+    aggregate, asmk_kernel (the database over keyframes is ``mslam_ref.retrieval_database``)
 
 Upstream: mast3r_slam/retrieval_database.py (RetrievalDatabase.update, quantize_custom,
 prep_features); asmk (asmk_method.py, functional.py: aggregate, binarize, asmk_kernel).
@@ -42,12 +42,12 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from mslam_ref.conventions import FloatArray, IntArray, as_float_array
+from mslam_ref.conventions import FloatArray, IntArray, U32Array, as_float_array
 
 __all__ = [
     "RetrievalConfig",
-    "RetrievalDatabase",
     "aggregate",
+    "asmk_kernel",
     "hamming",
     "pack_bits",
     "pool_cell",
@@ -55,8 +55,6 @@ __all__ = [
     "select_features",
     "train_codebook",
 ]
-
-U32Array = npt.NDArray[np.uint32]
 
 
 @dataclass(frozen=True)
@@ -71,6 +69,9 @@ class RetrievalConfig:
         build_multiple_assignment: nearest words per inserted descriptor (asmk ``build``: 1).
         similarity_threshold: selective-kernel threshold on ``sim`` (asmk: 0.0).
         alpha: selective-kernel exponent (asmk: 3.0).
+        codebook_size: visual words trained at the first keyframe (see "Codebook" above).
+        codebook_samples: descriptors sampled from the first keyframe to train them.
+        seed: seed of that sample and of k-means.
     """
 
     k: int = 3
@@ -80,10 +81,13 @@ class RetrievalConfig:
     build_multiple_assignment: int = 1
     similarity_threshold: float = 0.0
     alpha: float = 3.0
+    codebook_size: int = 64
+    codebook_samples: int = 4096
+    seed: int = 0
 
     def __post_init__(self) -> None:
-        if self.k < 1 or self.nfeat < 1:
-            raise ValueError(f"k, nfeat: must be >= 1, got {self.k}, {self.nfeat}")
+        if min(self.k, self.nfeat, self.codebook_size, self.codebook_samples) < 1:
+            raise ValueError("k, nfeat, codebook_size, codebook_samples: must be >= 1")
         if self.query_multiple_assignment < 1 or self.build_multiple_assignment < 1:
             raise ValueError("query/build_multiple_assignment: must be >= 1")
         if not self.alpha > 0:
@@ -278,130 +282,6 @@ def aggregate(
     return uniq.astype(np.int64), pack_bits(V > 0)
 
 
-class RetrievalDatabase:
-    """An ASMK inverted file over keyframes' local features; ids are insertion counters.
-
-    Upstream: mast3r_slam/retrieval_database.py::RetrievalDatabase (``update``, ``kf_counter``).
-
-    Args:
-        codebook: (W, F) visual words (:func:`train_codebook`).
-        cfg: :class:`RetrievalConfig`.
-    """
-
-    def __init__(self, codebook: npt.ArrayLike, cfg: RetrievalConfig = RetrievalConfig()) -> None:
-        cb = as_float_array(codebook, "codebook")
-        if cb.ndim != 2 or len(cb) == 0:
-            raise ValueError(f"codebook: expected a non-empty (W, F) array, got {cb.shape}")
-        self.codebook = cb
-        self.cfg = cfg
-        self.dim = cb.shape[1]
-        self.kf_counter = 0
-        self._words: list[IntArray] = []  # per image: word ids (m,)
-        self._bits: list[U32Array] = []  # per image: signatures (m, B)
-        self._index: tuple[IntArray, IntArray, U32Array, FloatArray] | None = None
-
-    def __len__(self) -> int:
-        return self.kf_counter
-
-    def _check(self, features: npt.ArrayLike) -> FloatArray:
-        X = as_float_array(features, "features")
-        if X.ndim != 2 or X.shape[1] != self.dim or len(X) == 0:
-            raise ValueError(f"features: expected a non-empty (n, {self.dim}) array, got {X.shape}")
-        return X
-
-    def _inverted_file(self) -> tuple[IntArray, IntArray, U32Array, FloatArray]:
-        """All stored (word, image id, bits) sorted by word, and 1/sqrt(n_d) per image."""
-        if self._index is None:
-            words = np.concatenate(self._words)
-            ids = np.repeat(np.arange(len(self._words)), [len(w) for w in self._words])
-            bits = np.concatenate(self._bits)
-            order = np.argsort(words, kind="stable")
-            inv_sqrt_nd = 1.0 / np.sqrt([len(w) for w in self._words])
-            self._index = (words[order], ids[order], bits[order], inv_sqrt_nd)
-        return self._index
-
-    def _scores_of(self, q_words: IntArray, q_bits: U32Array) -> FloatArray:
-        """ASMK scores (n_images,) of a query's aggregated words against every stored image."""
-        if self.kf_counter == 0:
-            return np.zeros(0)
-        words, ids, bits, inv_sqrt_nd = self._inverted_file()
-        lo = np.searchsorted(words, q_words, "left")
-        cnt = np.searchsorted(words, q_words, "right") - lo
-        qi = np.repeat(np.arange(len(q_words)), cnt)
-        starts = np.repeat(lo - (np.cumsum(cnt) - cnt), cnt)
-        ei = np.arange(len(qi)) + starts
-        sim = 1.0 - 2.0 * hamming(q_bits[qi], bits[ei]) / self.dim
-        kern = np.where(
-            sim >= self.cfg.similarity_threshold, np.maximum(sim, 0.0) ** self.cfg.alpha, 0.0
-        )
-        tot = np.bincount(ids[ei], weights=kern, minlength=self.kf_counter)
-        return tot * inv_sqrt_nd / np.sqrt(len(q_words))
-
-    def scores(self, features: npt.ArrayLike) -> FloatArray:
-        """ASMK score of ``features`` (query assignment) against every stored image: (n_images,)."""
-        X = self._check(features)
-        words = quantize(self.codebook, X, self.cfg.query_multiple_assignment)
-        return self._scores_of(*aggregate(self.codebook, X, words))
-
-    @staticmethod
-    def _top(scores: FloatArray, k: int, min_thresh: float) -> list[tuple[int, float]]:
-        order = np.argsort(-scores, kind="stable")[: min(k, len(scores))]
-        return [(int(i), float(scores[i])) for i in order if scores[i] > min_thresh]
-
-    def query(
-        self, features: npt.ArrayLike, k: int = 3, min_thresh: float = 5e-3
-    ) -> list[tuple[int, float]]:
-        """The best ``k`` stored images with ``score > min_thresh``, by descending score.
-
-        Args:
-            features: (n, F) local features (:func:`select_features`).
-            k: number of candidates.
-            min_thresh: score threshold.
-
-        Returns:
-            [(id, score), ...], best first; empty when the database is empty.
-        """
-        return self._top(self.scores(features), k, min_thresh)
-
-    def insert(self, features: npt.ArrayLike, words: IntArray | None = None) -> int:
-        """Add one image (build assignment) with id ``kf_counter``; returns the id."""
-        X = self._check(features)
-        if words is None:
-            words = quantize(self.codebook, X, self.cfg.build_multiple_assignment)
-        w, b = aggregate(self.codebook, X, words)
-        self._words.append(w)
-        self._bits.append(b)
-        self._index = None
-        self.kf_counter += 1
-        return self.kf_counter - 1
-
-    def update(
-        self,
-        features: npt.ArrayLike,
-        add_after_query: bool = True,
-        k: int = 3,
-        min_thresh: float = 5e-3,
-    ) -> list[int]:
-        """Query (when the database is non-empty), then optionally insert; upstream ``update``.
-
-        The query's word list (``query_multiple_assignment`` nearest, sorted) is reused for the
-        insertion truncated to its first ``build_multiple_assignment`` columns, as upstream does.
-
-        Args:
-            features: (n, F) local features of the new keyframe.
-            add_after_query: insert the keyframe with id ``kf_counter`` after querying.
-            k, min_thresh: see :meth:`query`.
-
-        Returns:
-            candidate ids, best first (``score > min_thresh``, at most ``k``).
-        """
-        X = self._check(features)
-        n_assign = max(self.cfg.query_multiple_assignment, self.cfg.build_multiple_assignment)
-        words = quantize(self.codebook, X, n_assign)
-        found: list[int] = []
-        if self.kf_counter > 0:
-            q = aggregate(self.codebook, X, words[:, : self.cfg.query_multiple_assignment])
-            found = [i for i, _ in self._top(self._scores_of(*q), k, min_thresh)]
-        if add_after_query:
-            self.insert(X, words[:, : self.cfg.build_multiple_assignment])
-        return found
+def asmk_kernel(sim: FloatArray, cfg: RetrievalConfig) -> FloatArray:
+    """Selective match kernel ``σ(sim) = max(sim, 0)^α`` where ``sim >= threshold``, else 0."""
+    return np.where(sim >= cfg.similarity_threshold, np.maximum(sim, 0.0) ** cfg.alpha, 0.0)

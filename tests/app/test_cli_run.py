@@ -172,7 +172,7 @@ def test_config_inherit_and_overrides(tmp_path):
     child.write_text("inherit: calib\ntracking:\n  Q_conf: 2\nretrieval:\n  k: 5\n")
     cfg = load_config(child, ["local_opt.max_iters=4", "matching.dist_thresh=1e-2"])
     assert cfg.use_calib and cfg.dataset.subsample == 2  # from calib.yaml
-    assert cfg.tracking().Q_conf == 2.0 and cfg.retrieval.k == 5  # child
+    assert cfg.tracking().Q_conf == 2.0 and cfg.retrieval().k == 5  # child
     assert cfg.backend().max_iters == 4 and cfg.matching().dist_thresh == 0.01  # --set
     assert cfg.tracking().sigma_ray == 0.003  # base default
     assert cfg.fusion().filtering_mode == "weighted_pointmap"

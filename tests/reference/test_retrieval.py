@@ -12,6 +12,7 @@ from hypothesis import strategies as st
 from numpy.lib.stride_tricks import sliding_window_view
 
 from mslam_ref import retrieval as R
+from mslam_ref.retrieval_database import RetrievalDatabase
 
 F = 24
 
@@ -118,8 +119,8 @@ def test_self_score_is_one_with_single_assignment_and_scores_in_range(places) ->
     lms, cb = places
     rng = np.random.default_rng(1)
     feats = [_view(rng, lm) for lm in lms]
-    db1 = R.RetrievalDatabase(cb, R.RetrievalConfig(query_multiple_assignment=1))
-    db5 = R.RetrievalDatabase(cb)
+    db1 = RetrievalDatabase(cb, R.RetrievalConfig(query_multiple_assignment=1))
+    db5 = RetrievalDatabase(cb)
     for f in feats:
         db1.insert(f)
         db5.insert(f)
@@ -133,7 +134,7 @@ def test_self_score_is_one_with_single_assignment_and_scores_in_range(places) ->
 def test_revisit_ranks_first_and_scores_are_symmetric_ish(places) -> None:
     lms, cb = places
     rng = np.random.default_rng(2)
-    db = R.RetrievalDatabase(cb)
+    db = RetrievalDatabase(cb)
     for lm in lms:
         db.update(_view(rng, lm))
     S = np.array([db.scores(_view(rng, lm)) for lm in lms])  # new views of each place
@@ -150,7 +151,7 @@ def test_unrelated_places_score_below_threshold() -> None:
     axes = np.eye(F)
     lms = [_place(rng, axes[[3 * p, 3 * p + 1, 3 * p + 2]], 0.08) for p in range(6)]
     cb = R.train_codebook(np.concatenate(lms), 96, seed=0)
-    db = R.RetrievalDatabase(cb)
+    db = RetrievalDatabase(cb)
     for lm in lms[:5]:
         db.update(_view(rng, lm))
     s = db.scores(_view(rng, lms[5]))  # a place never inserted
@@ -162,7 +163,7 @@ def test_unrelated_places_score_below_threshold() -> None:
 def test_update_protocol() -> None:
     rng = np.random.default_rng(3)
     cb = _unit(rng.normal(size=(16, F)))
-    db = R.RetrievalDatabase(cb, R.RetrievalConfig(query_multiple_assignment=1))
+    db = RetrievalDatabase(cb, R.RetrievalConfig(query_multiple_assignment=1))
     f = [_unit(rng.normal(size=(50, F))) for _ in range(5)]
     assert db.update(f[0]) == [] and db.kf_counter == 1 and len(db) == 1
     assert db.update(f[1], add_after_query=False, k=3, min_thresh=-1.0) == [0]
@@ -175,7 +176,7 @@ def test_update_protocol() -> None:
     assert [s for _, s in res] == sorted((s for _, s in res), reverse=True)
     assert len(db.query(f[2], k=2, min_thresh=-1.0)) == 2
     assert db.update(f[2], add_after_query=False, k=3, min_thresh=2.0) == []
-    assert R.RetrievalDatabase(cb).query(f[0]) == []
+    assert RetrievalDatabase(cb).query(f[0]) == []
     with pytest.raises(ValueError, match="features"):
         db.query(np.zeros((3, F + 1)))
     with pytest.raises(ValueError, match="features"):
@@ -214,7 +215,7 @@ def test_revisited_texture_view_ranks_first() -> None:
 
     D0, _ = view(tex[0], 10, 10)
     cb = R.train_codebook(D0.reshape(-1, F)[::2], 64, seed=0)
-    db = R.RetrievalDatabase(cb)
+    db = RetrievalDatabase(cb)
     for t in tex:
         db.update(R.select_features(*view(t, 40, 40)))
     for p, t in enumerate(tex):
@@ -244,7 +245,7 @@ def test_synthetic_room_revisit_is_retrieved() -> None:
             first = p.D_ii.reshape(-1, F)
         feats.append(R.select_features(p.D_ii, p.Q_ii))
     take = np.random.default_rng(0).choice(len(first), 4096, replace=False)
-    db = R.RetrievalDatabase(R.train_codebook(first[np.sort(take)], 256, seed=0))
+    db = RetrievalDatabase(R.train_codebook(first[np.sort(take)], 256, seed=0))
     T = seq.T_WC
 
     def view_dist(i: int, j: int) -> float:

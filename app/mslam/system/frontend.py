@@ -110,7 +110,7 @@ class SlamSystem:
         self._fusion_ref, self._tracking_ref = fusion, tracking
         self.keyframes = KeyframeStore()
         self.graph = FactorGraph()
-        self.retrieval = RetrievalIndex(cfg.retrieval)
+        self.retrieval = RetrievalIndex(cfg.retrieval())
         self.mode = Mode.INIT
         self.idx_f2k: np.ndarray | None = None
         self.T_WC_last = sim3.identity()
@@ -174,7 +174,7 @@ class SlamSystem:
             with self.timer("prior"):
                 X, C = self.prior.mono(frame)
             k = self.new_keyframe(frame, sim3.identity(), X, C)
-            self.retrieval.insert(self.keyframes[k].features)
+            self.retrieval.update(self.keyframes[k].features)
             self.T_WC_last = self.keyframes[k].T_WC.copy()
             self._record(frame, k, None, "keyframe")
             self.mode = Mode.TRACKING
