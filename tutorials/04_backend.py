@@ -13,7 +13,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from mslam.datasets.synthetic import make_sequence
-from mslam_ref import backend, sim3
+from mslam_ref import backend, normal_equations, sim3
 from mslam_ref.pointmap import backproject
 
 n, W, H = 10, 64, 48
@@ -60,7 +60,7 @@ xi[0] = 0.0
 T0 = sim3.retract(T_true, xi)
 graph = backend.pose_graph(X, C, ii, jj, idx, valid, Q, K)
 Hs, gs, cost = backend.linearize(T0, graph)
-A, b = backend.assemble_system(Hs, gs, ii - 1, jj - 1, n - 1)
+A, b = normal_equations.assemble_system(Hs, gs, ii - 1, jj - 1, n - 1)
 fig, ax = plt.subplots(figsize=(4, 4))
 ax.spy(A.toarray(), markersize=1)
 ax.set_title(f"A: {A.shape[0]}x{A.shape[1]}, {A.nnz} non-zeros")

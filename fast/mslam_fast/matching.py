@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 import taichi as ti
 
+from mslam_fast import _matching_host as host
 from mslam_fast._kernels import matching as K
 from mslam_fast._runtime import ensure_init
 from mslam_ref.matching import MatchingConfig
@@ -47,9 +48,6 @@ def _lanes() -> int:
     """Pixels per thread of the LM: ``LANES_CPU`` on the CPU, 1 on CUDA (one thread per pixel,
     like upstream's kernel: a GPU hides latency with more threads, not with lanes)."""
     return LANES_CPU if ensure_init().arch == "cpu" else 1
-
-
-_PAD = 8  # descriptor padding of F to a multiple of 8 (see _scratch)
 
 
 # --- kernels -------------------------------------------------------------------------------
@@ -227,59 +225,10 @@ def _match_k(
 # --- host wrappers -------------------------------------------------------------------------
 
 
-def _float(x: Any, name: str) -> Array:
-    """Contiguous runtime-dtype copy/view of a finite array (ValueError naming ``name``)."""
-    arr = np.ascontiguousarray(x, dtype=ensure_init().dtype)
-    # one cheap reduction first; the element-wise check only when the sum is not finite
-    if arr.size and not np.isfinite(arr.sum(dtype=np.float64)) and not np.isfinite(arr).all():
-        raise ValueError(f"{name}: contains non-finite values (NaN or inf)")
-    return arr
-
-
-def _points(x: Any) -> Array:
-    """Contiguous runtime-dtype points with non-finite points zeroed (as the reference)."""
-    arr = np.ascontiguousarray(x, dtype=ensure_init().dtype)
-    bad = ~np.isfinite(arr)
-    if bad.any():
-        arr = arr.copy()
-        arr[bad.any(axis=-1)] = 0.0
-    return arr
-
-
-def _descriptors(x: Any, name: str) -> Array:
-    """Finite descriptors as a contiguous float array, not copied when already one.
-
-    The kernel itself casts them to the runtime type into zero-padded scratch arrays
-    (``_scratch``), in parallel, so the host does no per-element work but the finiteness check.
-    """
-    x = np.asarray(x)
-    if x.dtype not in (np.float32, np.float64):
-        x = x.astype(ensure_init().dtype)
-    x = np.ascontiguousarray(x)
-    if x.size and not np.isfinite(x.sum(dtype=np.float64)) and not np.isfinite(x).all():
-        raise ValueError(f"{name}: contains non-finite values (NaN or inf)")
-    return x
-
-
-def _scratch(B: int, H: int, W: int, F: int, N: int, pad: int) -> tuple[Array, Array]:
-    """Zeroed runtime-type scratch: image-1 descriptors with a border of ``pad`` zero pixels,
-    as rows ``(B·(H + 2 pad)·(W + 2 pad), Fp)``, and target rows ``(B·N, Fp)``; F zero-padded to
-    a multiple of 8 (one AVX register of f32) for the vectorised dot products (24 stays 24;
-    padding to 32 measured ~10-20 % slower). (Keeping these arrays between calls of one shape
-    was measured: no gain above the noise, so they are fresh each call.)"""
-    Fp = -(-F // _PAD) * _PAD
-    dt = ensure_init().dtype
-    return np.zeros((B * (H + 2 * pad) * (W + 2 * pad), Fp), dt), np.zeros((B * N, Fp), dt)
-
-
-def _flags(a: Array) -> Array:
-    return a.view(np.bool_)
-
-
 def ray_image_and_gradients(X11: Any) -> Array:
     """Taichi twin of ``mslam_ref.matching.ray_image_and_gradients`` (two parallel loops)."""
     X, _ = image_batch(X11, "X11", 3)
-    X = _points(X)
+    X = host.points(X)
     RG = np.empty((*X.shape[:-1], 9), dtype=X.dtype)
     if X.shape[0] > 0:
         _rays_k(X, RG)
@@ -294,7 +243,7 @@ def iter_proj(
 ) -> tuple[Array, Array]:
     """Taichi twin of ``mslam_ref.matching.iter_proj`` (``_lanes()`` target pixels per thread)."""
     RG, batched = image_batch(rays_with_grad, "rays_with_grad", 9)
-    RG = _float(RG, "rays_with_grad")
+    RG = host.as_runtime_float(RG, "rays_with_grad")
     B = RG.shape[0]
     lead = (B,) if batched else ()
     t = np.asarray(X21)
@@ -304,8 +253,8 @@ def iter_proj(
     if p0.shape != (*t.shape[:-1], 2):
         raise ValueError(f"p_init: expected shape {(*t.shape[:-1], 2)}, got {p0.shape}")
     N = t.shape[-2]
-    t = _points(t).reshape(B, N, 3)
-    p0 = _float(p0, "p_init").reshape(B, N, 2)
+    t = host.points(t).reshape(B, N, 3)
+    p0 = host.as_runtime_float(p0, "p_init").reshape(B, N, 2)
     P = np.empty_like(p0)
     conv = np.zeros(p0.shape[:-1], dtype=np.uint8)
     if P.size:
@@ -320,7 +269,7 @@ def iter_proj(
             float(cfg.convergence_thresh),
             _lanes(),
         )
-    return (P, _flags(conv)) if batched else (P[0], _flags(conv[0]))
+    return (P, host.flags(conv)) if batched else (P[0], host.flags(conv[0]))
 
 
 def refine_matches(
@@ -338,11 +287,11 @@ def refine_matches(
         raise ValueError(f"D21: expected shape (N, {F}) or (B, N, {F}), got {D2.shape}")
     N = D2.shape[-2]
     p = int_pixels(p1, "p1", (*D2.shape[:-1], 2), H, W).reshape(B, N, 2)
-    D1, D2 = _descriptors(D1.reshape(-1, F), "D11"), _descriptors(D2.reshape(-1, F), "D21")
+    D1, D2 = host.descriptors(D1.reshape(-1, F), "D11"), host.descriptors(D2.reshape(-1, F), "D21")
     out = np.empty_like(p)
     if out.size:
         radius, dmax = int(cfg.radius), int(cfg.dilation_max)
-        D1p, D2p = _scratch(B, H, W, F, N, max(radius * dmax, 0))
+        D1p, D2p = host.scratch(B, H, W, F, N, max(radius * dmax, 0))
         _refine_k(D1, D2, D1p, D2p, p, out, H, W, radius, dmax)
     return out if batched else out[0]
 
@@ -362,14 +311,14 @@ def _match_args(
     N = H * W
     if idx0 is None:
         idx0 = np.zeros((1, 1), dtype=np.int64)  # unused by the kernel (use_init = 0)
-    X1, X2 = _points(X1), _points(X2).reshape(B, N, 3)
-    D1 = _descriptors(D1.reshape(B * N, F), "D11")
-    D2 = _descriptors(D2.reshape(B * N, F), "D21")
+    X1, X2 = host.points(X1), host.points(X2).reshape(B, N, 3)
+    D1 = host.descriptors(D1.reshape(B * N, F), "D11")
+    D2 = host.descriptors(D2.reshape(B * N, F), "D21")
     if cfg.radius > 0:
-        D1p, D2p = _scratch(B, H, W, F, N, int(cfg.radius) * int(cfg.dilation_max))
+        D1p, D2p = host.scratch(B, H, W, F, N, int(cfg.radius) * int(cfg.dilation_max))
     else:  # no refinement: one-row stand-ins, so the kernel's copy loops are trivial
         D1 = D2 = np.zeros((1, F), X1.dtype)
-        D1p, D2p = _scratch(1, 1, 1, F, 1, 0)
+        D1p, D2p = host.scratch(1, 1, 1, F, 1, 0)
     args = (
         X1,
         X2,
@@ -407,4 +356,4 @@ def match(
     idx, valid = args[9], args[10]
     if idx.shape[0] > 0:
         _match_k(*args)
-    return (idx, _flags(valid)) if batched else (idx[0], _flags(valid[0]))
+    return (idx, host.flags(valid)) if batched else (idx[0], host.flags(valid[0]))

@@ -22,7 +22,7 @@ constrained them loses nothing.
 
 Public names, in reading order:
     BackendConfig, BackendInfo, directed_blocks, block_residual_and_jacobian, PoseGraph,
-    pose_graph, check_poses, linearize, assemble_system, solve, solve_with
+    pose_graph, check_poses, linearize, solve, solve_with
 """
 
 from __future__ import annotations
@@ -32,20 +32,17 @@ from collections.abc import Callable
 from typing import Any
 
 import numpy as np
-import scipy.linalg
-import scipy.sparse
-import scipy.sparse.linalg
 
 from mslam_ref import calib, robust, sim3
 from mslam_ref.conventions import BoolArray, FloatArray, IntArray, as_float_array
 from mslam_ref.gauss_newton import gauss_newton
+from mslam_ref.normal_equations import assemble_system, factor_solve
 from mslam_ref.pointmap import check_K
 
 __all__ = [
     "BackendConfig",
     "BackendInfo",
     "PoseGraph",
-    "assemble_system",
     "block_residual_and_jacobian",
     "check_poses",
     "directed_blocks",
@@ -57,10 +54,6 @@ __all__ = [
 
 #: Huber threshold of the backend (hard-coded in gn_kernels.cu).
 HUBER_K = robust.HUBER_K
-
-#: Above this many unknowns the system is factorised with sparse LU instead of dense Cholesky
-#: (7 x 511, upstream's keyframe buffer of 512 with one pose fixed).
-DENSE_MAX = 7 * 511
 
 
 @dataclasses.dataclass(frozen=True)
@@ -342,55 +335,6 @@ def linearize(
     return Hs, gs, cost
 
 
-def assemble_system(
-    Hs: FloatArray, gs: FloatArray, pos_i: IntArray, pos_j: IntArray, n: int
-) -> tuple[scipy.sparse.csr_matrix, FloatArray]:
-    """Sum the blocks into the sparse 7n x 7n matrix and the 7n right-hand side.
-
-    Upstream: gn_kernels.cu::SparseBlock::update_lhs / update_rhs (Eigen triplets; duplicate
-    entries summed; blocks touching a fixed pose, position < 0, skipped).
-
-    Args:
-        Hs: (D, 4, 7, 7); gs: (D, 2, 7).
-        pos_i, pos_j: (D,) positions of the block's poses among the unknowns (-1: fixed).
-        n: number of free poses.
-
-    Returns:
-        A: (7n, 7n) CSR matrix; b: (7n,).
-    """
-    rows, cols, vals = [], [], []
-    r7 = np.arange(7)
-    b = np.zeros(7 * n)
-    for k, (p, q) in enumerate(((0, 0), (0, 1), (1, 0), (1, 1))):
-        pa = (pos_i, pos_j)[p]
-        pb = (pos_i, pos_j)[q]
-        keep = (pa >= 0) & (pb >= 0)
-        rr = 7 * pa[keep, None, None] + r7[None, :, None]
-        cc = 7 * pb[keep, None, None] + r7[None, None, :]
-        rows.append(np.broadcast_to(rr, (keep.sum(), 7, 7)).ravel())
-        cols.append(np.broadcast_to(cc, (keep.sum(), 7, 7)).ravel())
-        vals.append(Hs[keep, k].ravel())
-    for s, pa in enumerate((pos_i, pos_j)):
-        keep = pa >= 0
-        np.add.at(b, (7 * pa[keep, None] + r7).ravel(), gs[keep, s].ravel())
-    A = scipy.sparse.coo_matrix(
-        (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(7 * n, 7 * n)
-    ).tocsr()  # duplicates summed
-    return A, b
-
-
-def _factor_solve(A: scipy.sparse.csr_matrix, b: FloatArray) -> FloatArray | None:
-    """``-A^-1 b`` by dense Cholesky (sparse LU above DENSE_MAX unknowns); None on failure."""
-    try:
-        if A.shape[0] <= DENSE_MAX:
-            dx = -scipy.linalg.cho_solve(scipy.linalg.cho_factor(A.toarray(), lower=True), b)
-        else:
-            dx = -scipy.sparse.linalg.splu(A.tocsc()).solve(b)
-    except (np.linalg.LinAlgError, RuntimeError, ValueError):
-        return None
-    return dx if np.all(np.isfinite(dx)) else None
-
-
 LinearizeFn = Callable[..., tuple[FloatArray, FloatArray, float]]
 
 
@@ -413,7 +357,7 @@ def solve_with(
         A, b = assemble_system(
             np.asarray(Hs, np.float64), np.asarray(gs, np.float64), pos_i, pos_j, n
         )
-        return _factor_solve(A, b), cost
+        return factor_solve(A, b), cost
 
     def retract(T: FloatArray, dx: FloatArray) -> FloatArray:
         T = T.copy()

@@ -68,6 +68,40 @@ def as_points(x: Any, name: str, n: int | None = None) -> FloatArray:
     return X
 
 
+def as_flat_bool(x: Any, name: str, n: int | None = None) -> BoolArray:
+    """A flat boolean mask; 0/1 numbers are accepted, anything else raises (naming ``name``)."""
+    a = np.asarray(x)
+    if a.dtype != np.bool_:
+        if not np.issubdtype(a.dtype, np.number) or not np.all(np.isin(a, (0, 1))):
+            raise ValueError(f"{name}: expected a boolean mask")
+        a = a.astype(bool)
+    a = a.reshape(-1)
+    if n is not None and len(a) != n:
+        raise ValueError(f"{name}: expected {n} entries, got {len(a)}")
+    return a
+
+
+def as_flat_float(x: Any, name: str, n: int | None = None, nonneg: bool = False) -> FloatArray:
+    """A flat finite float64 array, optionally of length ``n`` and non-negative."""
+    a = as_float_array(x, name).reshape(-1)
+    if n is not None and len(a) != n:
+        raise ValueError(f"{name}: expected {n} entries, got {len(a)}")
+    if nonneg and np.any(a < 0.0):
+        raise ValueError(f"{name}: must be non-negative")
+    return a
+
+
+def as_flat_index(x: Any, name: str, n_max: int) -> IntArray:
+    """A flat int64 array of indices in ``[0, n_max)`` (integer dtype required)."""
+    a = np.asarray(x)
+    if not np.issubdtype(a.dtype, np.integer):
+        raise ValueError(f"{name}: expected integer pixel indices, got dtype {a.dtype}")
+    a = a.reshape(-1).astype(np.int64)
+    if len(a) and (a.min() < 0 or a.max() >= n_max):
+        raise ValueError(f"{name}: indices must lie in [0, {n_max})")
+    return a
+
+
 def pixel_to_lin(u: npt.ArrayLike, v: npt.ArrayLike, W: int) -> IntArray:
     """Linear pixel index ``n = u + W v`` (upstream matching.py::pixel_to_lin)."""
     return (np.asarray(u, dtype=np.int64) + W * np.asarray(v, dtype=np.int64)).astype(np.int64)

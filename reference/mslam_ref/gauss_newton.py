@@ -18,7 +18,7 @@ loop; the two callers pass those three pieces in.
         stop if converged(old_cost, cost, dx)
         old_cost = cost
 
-Public names, in reading order: GNTrace, gauss_newton.
+Public names, in reading order: GNTrace, gauss_newton, cholesky_step.
 """
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ import numpy as np
 
 from mslam_ref.conventions import FloatArray
 
-__all__ = ["GNTrace", "gauss_newton"]
+__all__ = ["GNTrace", "cholesky_step", "gauss_newton"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -105,3 +105,18 @@ def gauss_newton(
             return x, GNTrace(tuple(costs), tuple(norms), failed, True, False)
         old_cost = float(cost)
     return x, GNTrace(tuple(costs), tuple(norms), failed, False, False)
+
+
+def cholesky_step(H: Any, g: Any) -> FloatArray | None:
+    """The dense Gauss–Newton step ``H^-1 g`` by Cholesky (the sign is the caller's: tracking
+    passes ``g = -A^T b``).
+
+    Returns:
+        the step, or None when H is not positive definite or the step is not finite.
+    """
+    try:
+        L = np.linalg.cholesky(np.asarray(H, dtype=np.float64))
+        tau = np.linalg.solve(L.T, np.linalg.solve(L, np.asarray(g, dtype=np.float64)))
+    except np.linalg.LinAlgError:
+        return None
+    return tau if np.all(np.isfinite(tau)) else None

@@ -27,8 +27,17 @@ from typing import Any
 import numpy as np
 
 from mslam_ref import calib, robust, sim3
-from mslam_ref.conventions import BoolArray, FloatArray, IntArray, as_float_array, as_points
-from mslam_ref.gauss_newton import gauss_newton
+from mslam_ref.conventions import (
+    BoolArray,
+    FloatArray,
+    IntArray,
+    as_flat_bool,
+    as_flat_float,
+    as_flat_index,
+    as_float_array,
+    as_points,
+)
+from mslam_ref.gauss_newton import cholesky_step, gauss_newton
 from mslam_ref.pointmap import check_K
 
 __all__ = [
@@ -92,37 +101,6 @@ class TrackingInfo:
 # --- frontend helpers (spec §5.1, §5.5) ------------------------------------------------------
 
 
-def _flat_bool(x: Any, name: str, n: int | None = None) -> BoolArray:
-    a = np.asarray(x)
-    if a.dtype != np.bool_:
-        if not np.issubdtype(a.dtype, np.number) or not np.all(np.isin(a, (0, 1))):
-            raise ValueError(f"{name}: expected a boolean mask")
-        a = a.astype(bool)
-    a = a.reshape(-1)
-    if n is not None and len(a) != n:
-        raise ValueError(f"{name}: expected {n} entries, got {len(a)}")
-    return a
-
-
-def _flat_float(x: Any, name: str, n: int | None = None, nonneg: bool = False) -> FloatArray:
-    a = as_float_array(x, name).reshape(-1)
-    if n is not None and len(a) != n:
-        raise ValueError(f"{name}: expected {n} entries, got {len(a)}")
-    if nonneg and np.any(a < 0.0):
-        raise ValueError(f"{name}: must be non-negative")
-    return a
-
-
-def _flat_index(x: Any, name: str, n_max: int) -> IntArray:
-    a = np.asarray(x)
-    if not np.issubdtype(a.dtype, np.integer):
-        raise ValueError(f"{name}: expected integer pixel indices, got dtype {a.dtype}")
-    a = a.reshape(-1).astype(np.int64)
-    if len(a) and (a.min() < 0 or a.max() >= n_max):
-        raise ValueError(f"{name}: indices must lie in [0, {n_max})")
-    return a
-
-
 def match_quality(Q_ff: FloatArray, Q_kf: FloatArray, idx_f2k: IntArray) -> FloatArray:
     """Per-keyframe-pixel match quality ``Q_k[n] = sqrt(Q_ff[idx_f2k[n]] · Q_kf[n])``.
 
@@ -136,9 +114,9 @@ def match_quality(Q_ff: FloatArray, Q_kf: FloatArray, idx_f2k: IntArray) -> Floa
     Returns:
         (N,) quality per keyframe pixel.
     """
-    Q_ff = _flat_float(Q_ff, "Q_ff", nonneg=True)
-    idx = _flat_index(idx_f2k, "idx_f2k", len(Q_ff))
-    Q_kf = _flat_float(Q_kf, "Q_kf", len(idx), nonneg=True)
+    Q_ff = as_flat_float(Q_ff, "Q_ff", nonneg=True)
+    idx = as_flat_index(idx_f2k, "idx_f2k", len(Q_ff))
+    Q_kf = as_flat_float(Q_kf, "Q_kf", len(idx), nonneg=True)
     return np.sqrt(Q_ff[idx] * Q_kf)
 
 
@@ -166,11 +144,11 @@ def tracking_masks(
     Returns:
         valid_opt: (N,) bool; valid_kf: (N,) bool.
     """
-    vm = _flat_bool(valid_match_k, "valid_match_k")
+    vm = as_flat_bool(valid_match_k, "valid_match_k")
     n = len(vm)
-    C_f = _flat_float(C_f, "C_f", n)
-    C_k = _flat_float(C_k, "C_k", n)
-    Q_k = _flat_float(Q_k, "Q_k", n)
+    C_f = as_flat_float(C_f, "C_f", n)
+    C_k = as_flat_float(C_k, "C_k", n)
+    Q_k = as_flat_float(Q_k, "Q_k", n)
     valid_kf = vm & (Q_k > cfg.Q_conf)
     valid_opt = valid_kf & (C_f > cfg.C_conf) & (C_k > cfg.C_conf)
     return valid_opt, valid_kf
@@ -179,7 +157,7 @@ def tracking_masks(
 def match_fraction(valid_opt: BoolArray) -> float:
     """Share of keyframe pixels usable for tracking; below ``min_match_frac`` the frame is
     skipped and relocalisation is tried (spec §5.1 step 8)."""
-    v = _flat_bool(valid_opt, "valid_opt")
+    v = as_flat_bool(valid_opt, "valid_opt")
     return float(v.mean()) if len(v) else 0.0
 
 
@@ -207,14 +185,14 @@ def needs_new_keyframe(
     Returns:
         True when the frame should become a keyframe.
     """
-    vm = _flat_bool(valid_match_k, "valid_match_k")
+    vm = as_flat_bool(valid_match_k, "valid_match_k")
     n = len(vm)
     if n == 0:
         raise ValueError("valid_match_k: empty mask")
-    idx = _flat_index(idx_f2k, "idx_f2k", n)
+    idx = as_flat_index(idx_f2k, "idx_f2k", n)
     if len(idx) != n:
         raise ValueError(f"idx_f2k: expected {n} entries, got {len(idx)}")
-    vk = _flat_bool(valid_kf, "valid_kf", n)
+    vk = as_flat_bool(valid_kf, "valid_kf", n)
     match_frac_k = vk.mean()
     unique_frac_f = len(np.unique(idx[vm])) / n
     return bool(min(match_frac_k, unique_frac_f) < cfg.match_frac_thresh)
@@ -286,8 +264,8 @@ def check_problem(
         raise ValueError(f"X_k: expected (N, 3) or (H, W, 3), got {X_k.shape}")
     n = X_k.size // 3
     X_f = as_points(X_f, "X_f", n)
-    Q = _flat_float(Q, "Q", n, nonneg=True)
-    valid = _flat_bool(valid, "valid", n)
+    Q = as_flat_float(Q, "Q", n, nonneg=True)
+    valid = as_flat_bool(valid, "valid", n)
     return X_f, X_k, Q, valid, K
 
 
@@ -357,16 +335,6 @@ def _converged(old_cost: float, cost: float, tau: FloatArray, cfg: TrackingConfi
     return rel < cfg.rel_error or float(np.linalg.norm(tau)) < cfg.delta_norm
 
 
-def _cholesky_step(H: Any, g: Any) -> FloatArray | None:
-    """``tau = H^-1 g`` by Cholesky; None when H is not positive definite or tau not finite."""
-    try:
-        L = np.linalg.cholesky(np.asarray(H, dtype=np.float64))
-        tau = np.linalg.solve(L.T, np.linalg.solve(L, np.asarray(g, dtype=np.float64)))
-    except np.linalg.LinAlgError:
-        return None
-    return tau if np.all(np.isfinite(tau)) else None
-
-
 def solve_with(
     linearize_fn: LinearizeFn,
     X_f: Any,
@@ -386,7 +354,7 @@ def solve_with(
 
     def step(T: FloatArray) -> tuple[FloatArray | None, float]:
         H, g, cost = linearize_fn(T, X_f, X_k, Q, valid, cfg, K)
-        return _cholesky_step(H, g), cost
+        return cholesky_step(H, g), cost
 
     T, trace = gauss_newton(
         T0, step, sim3.retract, lambda old, c, tau: _converged(old, c, tau, cfg), cfg.max_iters

@@ -11,7 +11,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
 from mslam.datasets.synthetic import make_sequence
-from mslam_ref import backend, sim3
+from mslam_ref import backend, normal_equations, sim3
 from mslam_ref.backend import BackendConfig
 from mslam_ref.pointmap import backproject
 
@@ -154,7 +154,7 @@ def test_assemble_system_sums_blocks_and_skips_fixed() -> None:
     rng = np.random.default_rng(0)
     Hs, gs = rng.normal(size=(3, 4, 7, 7)), rng.normal(size=(3, 2, 7))
     pos_i, pos_j = np.array([-1, 0, 1]), np.array([0, 1, 0])
-    A, b = backend.assemble_system(Hs, gs, pos_i, pos_j, 2)
+    A, b = normal_equations.assemble_system(Hs, gs, pos_i, pos_j, 2)
     Ad, bd = np.zeros((14, 14)), np.zeros(14)
     for d in range(3):
         for k, (p, q) in enumerate(((0, 0), (0, 1), (1, 0), (1, 1))):
