@@ -26,10 +26,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _results import table, write_section
 
 from mslam.config import load_config
+from mslam.datasets.synthetic import DEFAULT_SYNTHETIC
 from mslam.kernels import load_kernels
 from mslam.system import open_source, run_slam
 from mslam.system.outputs import evaluate_run
-from mslam.system.sources import DEFAULT_SYNTHETIC
 
 SEVEN_SCENES = (
     Path(__file__).resolve().parents[2] / "shared/data/seq/7scenes_redkitchen_f000000-000149"

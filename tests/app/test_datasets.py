@@ -15,12 +15,12 @@ from mslam.datasets import (
     Frame,
     load_sequence,
     read_calibration,
-    read_trajectory,
     subsample_sequence,
-    write_tum,
+    write_tum_sequence,
 )
 from mslam.datasets.readers import encode_png
 from mslam.datasets.synthetic import make_sequence
+from mslam.formats import read_tum
 from mslam_ref import sim3
 
 W, H = 64, 48
@@ -53,8 +53,8 @@ def test_synth_tum_round_trip(tum_dir: Path) -> None:
         np.testing.assert_allclose(sim3.to_matrix(a.T_WC), sim3.to_matrix(b.T_WC), atol=1e-8)
     cal = read_calibration(tum_dir / "calib.yaml")
     assert (cal.width, cal.height, cal.depth_scale) == (W, H, 5000.0)
-    t, T = read_trajectory(tum_dir / "groundtruth.txt")
-    assert t.shape == (8,) and T.shape == (8, 8)
+    t, T = read_tum(tum_dir / "groundtruth.txt")
+    assert t.shape == (8,) and T.shape == (8, 7)
     raw = cv2.imread(str(next((tum_dir / "depth").iterdir())), cv2.IMREAD_UNCHANGED)
     assert raw.dtype == np.uint16 and raw.shape == (H, W)
 
@@ -176,7 +176,7 @@ def test_seven_scenes(shared_data: Path) -> None:
     assert 0.5 < valid.mean() and 0.3 < np.median(f.depth[valid]) < 5.0
     M = np.loadtxt(folder / "frame-000020.pose.txt")
     np.testing.assert_allclose(sim3.to_matrix(f.T_WC), M, atol=1e-3)
-    _, T = read_trajectory(folder / "groundtruth.txt")
+    _, T = read_tum(folder / "groundtruth.txt")
     np.testing.assert_allclose(seq.T_WC[:, :3], T[:, :3], atol=1e-6)
     sub = load_sequence(folder, subsample=10, size=(160, 120))
     assert len(sub) == 15 and sub[1].rgb.shape == (120, 160, 3) and sub[1].index == 1
@@ -288,6 +288,6 @@ def test_write_tum_refuses_non_empty(tmp_path: Path) -> None:
     (tmp_path / "x").mkdir()
     (tmp_path / "x" / "f").write_text("")
     with pytest.raises(ValueError, match="not empty"):
-        write_tum(seq, tmp_path / "x")
-    write_tum(seq, tmp_path / "x", overwrite=True)
+        write_tum_sequence(seq, tmp_path / "x")
+    write_tum_sequence(seq, tmp_path / "x", overwrite=True)
     assert len(load_sequence(tmp_path / "x")) == 2

@@ -42,7 +42,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     """Render and write the sequence; prints a JSON summary."""
     from mslam.datasets.synthetic import make_sequence
-    from mslam.datasets.tum import write_tum
+    from mslam.datasets.tum import write_tum_sequence
     from mslam_ref.synthetic import PATHS, jump_indices
 
     name = args.name.removeprefix("synthetic:")
@@ -56,7 +56,7 @@ def run(args: argparse.Namespace) -> int:
     if out.exists() and (not out.is_dir() or (any(out.iterdir()) and not args.overwrite)):
         raise UserError(f"{out}: exists and is not an empty folder (use --overwrite)")
     seq = make_sequence(name, args.frames, args.width, args.height, args.seed)
-    write_tum(seq, out, depth_scale=5000.0, overwrite=args.overwrite)
+    write_tum_sequence(seq, out, depth_scale=5000.0, overwrite=args.overwrite)
     info = {
         "name": seq.name,
         "frames": len(seq),

@@ -20,7 +20,7 @@ Every loader returns a :class:`FrameSequence` (``len``, ``seq[i] -> Frame``, ``K
 
 Public names, in reading order:
     Frame, FrameSequence, load_sequence, subsample_sequence, Calibration, read_calibration,
-    load_tum, write_tum, read_trajectory, load_7scenes, load_euroc, load_image_folder,
+    load_tum, write_tum_sequence, load_7scenes, load_euroc, load_image_folder,
     VideoSequence
 """
 
@@ -38,7 +38,8 @@ from mslam.datasets.folders import (
 )
 from mslam.datasets.frame import Frame, FrameSequence
 from mslam.datasets.readers import Calibration, read_calibration
-from mslam.datasets.tum import load_tum, read_trajectory, write_tum
+from mslam.datasets.tum import load_tum, write_tum_sequence
+from mslam.datasets.views import SubsampledSequence
 
 __all__ = [
     "Calibration",
@@ -52,25 +53,9 @@ __all__ = [
     "load_sequence",
     "load_tum",
     "read_calibration",
-    "read_trajectory",
     "subsample_sequence",
-    "write_tum",
+    "write_tum_sequence",
 ]
-
-
-class _Subsampled(FrameSequence):
-    """Every ``step``-th frame of another sequence, re-indexed from 0."""
-
-    def __init__(self, base: FrameSequence, step: int) -> None:
-        self.base, self.step = base, int(step)
-        self.name, self.K, self.has_depth = base.name, base.K, base.has_depth
-        self.distortion = base.distortion
-        self.timestamps = base.timestamps[:: self.step]
-        self.T_WC = None if base.T_WC is None else base.T_WC[:: self.step]
-
-    def _load(self, i: int) -> Frame:
-        f = self.base[i * self.step]
-        return Frame(i, f.timestamp, f.rgb, f.depth, f.T_WC)
 
 
 def subsample_sequence(seq: FrameSequence, step: int) -> FrameSequence:
@@ -81,7 +66,7 @@ def subsample_sequence(seq: FrameSequence, step: int) -> FrameSequence:
         return seq
     if isinstance(seq, FileSequence):
         return seq.subsampled(step)
-    return _Subsampled(seq, step)
+    return SubsampledSequence(seq, step)
 
 
 def load_sequence(
@@ -111,12 +96,14 @@ def load_sequence(
         raise ValueError(f"subsample: must be >= 1, got {subsample}")
     text = str(source)
     if text.startswith("synthetic:"):
-        from mslam.datasets.synthetic import make_sequence
+        from mslam.datasets.synthetic import make_sequence, parse_synthetic
 
+        name, n, w, h = parse_synthetic(text)
+        params = {"n_frames": n, "width": w, "height": h, "seed": 0}
         if size is not None:
-            synthetic_kwargs.setdefault("width", size[0])
-            synthetic_kwargs.setdefault("height", size[1])
-        return subsample_sequence(make_sequence(text, **synthetic_kwargs), step)
+            params["width"], params["height"] = size
+        params.update(synthetic_kwargs)
+        return subsample_sequence(make_sequence(name, **params), step)
     path = Path(source)
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such file or folder")

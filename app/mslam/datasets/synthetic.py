@@ -13,7 +13,8 @@ Quick use::
     seq.K               # (3, 3) intrinsics, principal point at ((W-1)/2, (H-1)/2)
 
 Public names, in reading order:
-    SyntheticSequence, make_sequence (and PATHS, the accepted path names)
+    DEFAULT_SYNTHETIC, parse_synthetic, SyntheticSequence, make_sequence (and PATHS, the
+    accepted path names)
 """
 
 from __future__ import annotations
@@ -26,7 +27,34 @@ from mslam.datasets.frame import Frame, FrameSequence
 from mslam_ref.conventions import FloatArray
 from mslam_ref.synthetic import PATHS, Scene, camera_path, intrinsics, make_scene, render
 
-__all__ = ["PATHS", "SyntheticSequence", "make_sequence"]
+__all__ = ["DEFAULT_SYNTHETIC", "PATHS", "SyntheticSequence", "make_sequence", "parse_synthetic"]
+
+#: The built-in sequence of ``mslam run --out DIR`` (name, frames, width, height).
+DEFAULT_SYNTHETIC = ("loop", 72, 128, 96)
+
+
+def parse_synthetic(source: str) -> tuple[str, int, int, int]:
+    """``synthetic:NAME[:FRAMES[:WxH]]`` → (name, frames, width, height); defaults from
+    :data:`DEFAULT_SYNTHETIC`.
+
+    Raises:
+        ValueError: a malformed source, fewer than 2 frames or fewer than 16x16 pixels.
+    """
+    parts = source.split(":")
+    name = parts[1] if len(parts) > 1 and parts[1] else DEFAULT_SYNTHETIC[0]
+    n, w, h = DEFAULT_SYNTHETIC[1:]
+    try:
+        if len(parts) > 2:
+            n = int(parts[2])
+        if len(parts) > 3:
+            w, h = (int(x) for x in parts[3].lower().split("x"))
+        if len(parts) > 4:
+            raise ValueError
+    except ValueError:
+        raise ValueError(f"SOURCE {source!r}: expected synthetic:NAME[:FRAMES[:WxH]]") from None
+    if n < 2 or w < 16 or h < 16:
+        raise ValueError(f"SOURCE {source!r}: need >= 2 frames and >= 16x16 pixels")
+    return name, n, w, h
 
 
 class SyntheticSequence(FrameSequence):

@@ -6,7 +6,7 @@ Layout: ``rgb.txt`` and ``depth.txt`` (``timestamp filename``), ``associations.t
 metre, and (ours, optional) ``calib.yaml`` in upstream's calibration format.
 
 Public names, in reading order:
-    TUM_CALIB, load_tum, read_trajectory, write_tum
+    TUM_CALIB, load_tum, write_tum_sequence
 """
 
 from __future__ import annotations
@@ -25,9 +25,10 @@ from mslam.datasets.readers import (
     encode_png,
     read_text_rows,
 )
+from mslam.formats import read_tum
 from mslam_ref.conventions import FloatArray
 
-__all__ = ["TUM_CALIB", "load_tum", "read_trajectory", "write_tum"]
+__all__ = ["TUM_CALIB", "load_tum", "write_tum_sequence"]
 
 #: Upstream's built-in TUM calibrations (config/intrinsics; spec §10.3), 640x480.
 TUM_CALIB = {
@@ -40,28 +41,11 @@ TUM_CALIB = {
 MAX_DT = 0.02
 
 
-def read_trajectory(path: str | Path) -> tuple[FloatArray, FloatArray]:
-    """A TUM trajectory file: ``timestamp tx ty tz qx qy qz qw`` per line.
-
-    Returns:
-        timestamps (M,) and poses (M, 8) Sim(3) with s = 1 (quaternions normalised).
-
-    Raises:
-        FileNotFoundError; ValueError naming file and line for malformed rows.
-    """
-    path = Path(path)
-    rows = read_text_rows(path, 8)
-    try:
-        data = np.array([[float(x) for x in r[:8]] for r in rows], dtype=np.float64)
-    except ValueError:
-        raise ValueError(f"{path}: non-numeric trajectory entry") from None
-    data = data.reshape(-1, 8)
-    q = data[:, 4:8]
-    n = np.linalg.norm(q, axis=1, keepdims=True)
-    if np.any(n < 1e-9) or not np.all(np.isfinite(data)):
-        raise ValueError(f"{path}: zero or non-finite quaternion")
-    T = np.concatenate([data[:, 1:4], q / n, np.ones((len(data), 1))], axis=1)
-    return data[:, 0], T
+def _ground_truth(path: Path) -> tuple[FloatArray, FloatArray]:
+    """``groundtruth.txt`` as timestamps (M,) and Sim(3) poses (M, 8), s = 1, unit quaternions."""
+    stamps, tq = read_tum(path)
+    q = tq[:, 3:7] / np.linalg.norm(tq[:, 3:7], axis=1, keepdims=True)
+    return stamps, np.concatenate([tq[:, :3], q, np.ones((len(tq), 1))], axis=1)
 
 
 def _nearest(t: FloatArray, ref: FloatArray, max_dt: float) -> np.ndarray:
@@ -121,7 +105,7 @@ def load_tum(
     T_WC = None
     gt = folder / "groundtruth.txt"
     if gt.is_file():
-        gt_t, gt_T = read_trajectory(gt)
+        gt_t, gt_T = _ground_truth(gt)
         idx = _nearest(np.array(stamps), gt_t, MAX_DT)
         T_WC = [gt_T[k] if k >= 0 else None for k in idx]
     cal = apply_calibration(calib)
@@ -138,7 +122,9 @@ def _tum_line(t: float, T: FloatArray) -> str:
     return f"{t:.6f} " + " ".join(f"{v:.9f}" for v in T[:7])
 
 
-def write_tum(seq: FrameSequence, out: str | Path, depth_scale: float = 5000.0, overwrite=False):
+def write_tum_sequence(
+    seq: FrameSequence, out: str | Path, depth_scale: float = 5000.0, overwrite=False
+):
     """Write a sequence in TUM layout (plus ``calib.yaml``) into ``out``, all or nothing.
 
     Everything is written into a temporary sibling folder first and renamed at the end, so an

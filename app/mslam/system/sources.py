@@ -4,10 +4,11 @@
 a missing or inconsistent calibration, or a prior that cannot work on the source is one clear
 error (``ValueError``/``FileNotFoundError``) and no output is written:
 
-* SOURCE ``None`` → the built-in synthetic ``loop`` (:data:`DEFAULT_SYNTHETIC`);
-  ``synthetic:NAME[:FRAMES[:WxH]]`` → ``mslam_ref.synthetic.make_sequence``; anything else
-  → ``mslam.datasets.load_sequence`` (TUM-layout folder, 7-Scenes folder, image folder,
-  video file).
+* SOURCE → ``mslam.datasets.load_sequence``, the one loader of every input: ``None`` is the
+  built-in synthetic ``loop`` (``mslam.datasets.synthetic.DEFAULT_SYNTHETIC``),
+  ``synthetic:NAME[:FRAMES[:WxH]]`` a rendered scene, anything else a path (TUM-layout
+  folder, 7-Scenes folder, EuRoC folder, image folder, video file); a folder is a folder
+  whatever its name.
 * ``--calib FILE`` (upstream: forces ``use_calib``) sets the intrinsics; its ``width``/``height``
   must match the images. ``use_calib`` without any intrinsics is an error.
 * Prior: ``synthetic`` for synthetic sources, ``rgbd`` when the frames carry depth, otherwise
@@ -16,13 +17,11 @@ error (``ValueError``/``FileNotFoundError``) and no output is written:
   with the intrinsics rescaled; ``dataset.subsample`` keeps every n-th frame.
 
 Public names, in reading order:
-    DEFAULT_SYNTHETIC, PRIORS, Source, parse_synthetic, ResizedSequence, SubsampledSequence,
-    open_source
+    PRIORS, Source, open_source
 """
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -31,20 +30,11 @@ import cv2
 import numpy as np
 
 from mslam.config import SlamConfig
-from mslam.datasets.frame import Frame, FrameSequence
+from mslam.datasets import load_sequence
+from mslam.datasets.frame import Frame
+from mslam.datasets.views import ResizedSequence, SubsampledSequence, TruncatedSequence
 
-__all__ = [
-    "DEFAULT_SYNTHETIC",
-    "PRIORS",
-    "ResizedSequence",
-    "Source",
-    "SubsampledSequence",
-    "open_source",
-    "parse_synthetic",
-]
-
-#: The built-in sequence of ``mslam run --out DIR`` (name, frames, width, height).
-DEFAULT_SYNTHETIC = ("loop", 72, 128, 96)
+__all__ = ["PRIORS", "Source", "open_source"]
 
 #: Accepted ``--prior`` values.
 PRIORS = ("synthetic", "rgbd", "mast3r")
@@ -66,69 +56,6 @@ class Source:
     prior_name: str
     K: np.ndarray | None
     name: str
-
-
-def parse_synthetic(source: str) -> tuple[str, int, int, int]:
-    """``synthetic:NAME[:FRAMES[:WxH]]`` → (name, frames, width, height); defaults from
-    :data:`DEFAULT_SYNTHETIC`."""
-    parts = source.split(":")
-    name = parts[1] if len(parts) > 1 and parts[1] else DEFAULT_SYNTHETIC[0]
-    n, w, h = DEFAULT_SYNTHETIC[1:]
-    try:
-        if len(parts) > 2:
-            n = int(parts[2])
-        if len(parts) > 3:
-            w, h = (int(x) for x in parts[3].lower().split("x"))
-        if len(parts) > 4:
-            raise ValueError
-    except ValueError:
-        raise ValueError(f"SOURCE {source!r}: expected synthetic:NAME[:FRAMES[:WxH]]") from None
-    if n < 2 or w < 16 or h < 16:
-        raise ValueError(f"SOURCE {source!r}: need >= 2 frames and >= 16x16 pixels")
-    return name, n, w, h
-
-
-class SubsampledSequence(FrameSequence):
-    """Every ``step``-th frame of ``base`` (upstream ``dataset.subsample``); frame indices are
-    renumbered 0, 1, ... as upstream's ``frame_id``; timestamps and ground truth are kept."""
-
-    def __init__(self, base: FrameSequence, step: int) -> None:
-        self.base, self.step = base, int(step)
-        self.name = base.name
-        self.K, self.has_depth, self.distortion = base.K, base.has_depth, base.distortion
-        keep = np.arange(0, len(base), self.step)
-        self._keep = keep
-        self.timestamps = np.asarray(base.timestamps)[keep]
-        self.T_WC = None if base.T_WC is None else np.asarray(base.T_WC)[keep]
-        for attr in ("width", "height"):
-            if hasattr(base, attr):
-                setattr(self, attr, getattr(base, attr))
-
-    def _load(self, i: int) -> Frame:
-        return dataclasses.replace(self.base[int(self._keep[i])], index=i)
-
-
-class ResizedSequence(FrameSequence):
-    """Frames of ``base`` shrunk to ``(width, height)``: colour with INTER_AREA, depth with
-    nearest neighbour (no mixing across depth edges), intrinsics rescaled (pixel centres)."""
-
-    def __init__(self, base: FrameSequence, width: int, height: int, src_size: tuple[int, int]):
-        from mslam_ref.pointmap import scale_intrinsics
-
-        self.base, self.width, self.height = base, int(width), int(height)
-        self.name = base.name
-        self.has_depth, self.distortion = base.has_depth, base.distortion
-        self.timestamps, self.T_WC = base.timestamps, base.T_WC
-        self.K = None if base.K is None else scale_intrinsics(base.K, src_size, (width, height))
-
-    def _load(self, i: int) -> Frame:
-        f = self.base[i]
-        size = (self.width, self.height)
-        rgb = cv2.resize(f.rgb, size, interpolation=cv2.INTER_AREA)
-        depth = None
-        if f.depth is not None:
-            depth = cv2.resize(f.depth, size, interpolation=cv2.INTER_NEAREST)
-        return dataclasses.replace(f, rgb=rgb, depth=depth)
 
 
 def _make_prior(name: str, sequence: Any) -> Any:
@@ -160,20 +87,8 @@ def open_source(
         from mslam.datasets.readers import read_calibration
 
         cal = read_calibration(calib)
-    synthetic = source is None or str(source).startswith("synthetic")
-    if synthetic:
-        from mslam.datasets.synthetic import make_sequence
-
-        name, n, w, h = parse_synthetic(source or "synthetic:")
-        seq: Any = make_sequence(name, n_frames=n, width=w, height=h, seed=0)
-    else:
-        from mslam import datasets
-
-        if not Path(source).exists():
-            raise FileNotFoundError(f"{source}: no such file or folder")
-        if not hasattr(datasets, "load_sequence"):
-            raise ValueError(f"{source}: dataset loaders are not available in this build")
-        seq = datasets.load_sequence(str(source), calib=cal)
+    synthetic = source is None or str(source).startswith("synthetic:")
+    seq: Any = load_sequence(str(source or "synthetic:"), calib=cal)
     if len(seq) == 0:
         raise ValueError(f"{source}: the sequence has no frames")
     first = _first_readable(seq, str(source or "synthetic"))
@@ -209,7 +124,7 @@ def open_source(
         w, h = round(W * long_side / max(W, H)), round(H * long_side / max(W, H))
         seq = ResizedSequence(seq, w, h, (W, H))
     if max_frames is not None and max_frames < len(seq):
-        seq = _Truncated(seq, max_frames)
+        seq = TruncatedSequence(seq, max_frames)
     p = _make_prior(prior_name, seq)
     K = seq.K if use_calib else None
     if K is not None and hasattr(p, "network_intrinsics"):
@@ -226,20 +141,3 @@ def _first_readable(seq: Any, name: str, tries: int = 10) -> Frame:
         except (OSError, ValueError, cv2.error) as exc:
             last = exc
     raise ValueError(f"{name}: cannot read any of the first {min(tries, len(seq))} frames ({last})")
-
-
-class _Truncated(FrameSequence):
-    """The first ``n`` frames of ``base`` (``--max-frames``)."""
-
-    def __init__(self, base: FrameSequence, n: int) -> None:
-        self.base = base
-        self.name, self.K, self.has_depth = base.name, base.K, base.has_depth
-        self.distortion = base.distortion
-        self.timestamps = np.asarray(base.timestamps)[:n]
-        self.T_WC = None if base.T_WC is None else np.asarray(base.T_WC)[:n]
-        for attr in ("width", "height"):
-            if hasattr(base, attr):
-                setattr(self, attr, getattr(base, attr))
-
-    def _load(self, i: int) -> Frame:
-        return self.base[i]

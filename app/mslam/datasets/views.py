@@ -1,0 +1,80 @@
+"""Views of a frame sequence: every n-th frame, smaller images, the first n frames.
+
+Each view is itself a :class:`~mslam.datasets.frame.FrameSequence` over another one, so the
+one input pipeline (``mslam.datasets.load_sequence`` then ``mslam.system.sources.open_source``)
+composes them in a fixed order: subsample, resize, truncate.
+
+Public names, in reading order:
+    SubsampledSequence, ResizedSequence, TruncatedSequence
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import cv2
+import numpy as np
+
+from mslam.datasets.frame import Frame, FrameSequence
+from mslam_ref.pointmap import scale_intrinsics
+
+__all__ = ["ResizedSequence", "SubsampledSequence", "TruncatedSequence"]
+
+
+def _copy_metadata(view: FrameSequence, base: FrameSequence) -> None:
+    view.name, view.K = base.name, base.K
+    view.has_depth, view.distortion = base.has_depth, base.distortion
+    for attr in ("width", "height"):
+        if hasattr(base, attr):
+            setattr(view, attr, getattr(base, attr))
+
+
+class SubsampledSequence(FrameSequence):
+    """Every ``step``-th frame of ``base`` (upstream ``dataset.subsample``); frame indices are
+    renumbered 0, 1, ... as upstream's ``frame_id``; timestamps and ground truth are kept."""
+
+    def __init__(self, base: FrameSequence, step: int) -> None:
+        if int(step) < 1:
+            raise ValueError(f"subsample: must be >= 1, got {step}")
+        self.base, self.step = base, int(step)
+        _copy_metadata(self, base)
+        self._keep = np.arange(0, len(base), self.step)
+        self.timestamps = np.asarray(base.timestamps)[self._keep]
+        self.T_WC = None if base.T_WC is None else np.asarray(base.T_WC)[self._keep]
+
+    def _load(self, i: int) -> Frame:
+        return dataclasses.replace(self.base[int(self._keep[i])], index=i)
+
+
+class ResizedSequence(FrameSequence):
+    """Frames of ``base`` shrunk to ``(width, height)``: colour with INTER_AREA, depth with
+    nearest neighbour (no mixing across depth edges), intrinsics rescaled (pixel centres)."""
+
+    def __init__(self, base: FrameSequence, width: int, height: int, src_size: tuple[int, int]):
+        self.base = base
+        _copy_metadata(self, base)
+        self.width, self.height = int(width), int(height)
+        self.timestamps, self.T_WC = base.timestamps, base.T_WC
+        self.K = None if base.K is None else scale_intrinsics(base.K, src_size, (width, height))
+
+    def _load(self, i: int) -> Frame:
+        f = self.base[i]
+        size = (self.width, self.height)
+        rgb = cv2.resize(f.rgb, size, interpolation=cv2.INTER_AREA)
+        depth = None
+        if f.depth is not None:
+            depth = cv2.resize(f.depth, size, interpolation=cv2.INTER_NEAREST)
+        return dataclasses.replace(f, rgb=rgb, depth=depth)
+
+
+class TruncatedSequence(FrameSequence):
+    """The first ``n`` frames of ``base`` (``mslam run --max-frames``)."""
+
+    def __init__(self, base: FrameSequence, n: int) -> None:
+        self.base = base
+        _copy_metadata(self, base)
+        self.timestamps = np.asarray(base.timestamps)[:n]
+        self.T_WC = None if base.T_WC is None else np.asarray(base.T_WC)[:n]
+
+    def _load(self, i: int) -> Frame:
+        return self.base[i]
