@@ -42,13 +42,13 @@ timeProfile, batchStatistics).
 from __future__ import annotations
 
 import dataclasses
-import time
 from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
 
 from mslam_ref.ba import schur as _schur
+from mslam_ref.ba.profile import StageClock
 from mslam_ref.conventions import FloatArray
 
 __all__ = ["PROFILE_KEYS", "LMConfig", "LMResult", "optimize", "robust_chi2", "solve_damped"]
@@ -160,17 +160,6 @@ def solve_damped(
     return dc, k.schur.back_substitute(Vinv, W, bl, dc, structure)
 
 
-class _Clock:
-    def __init__(self) -> None:
-        self.t = dict.fromkeys(PROFILE_KEYS, 0.0)
-        self.last = time.perf_counter()
-
-    def lap(self, key: str) -> None:
-        now = time.perf_counter()
-        self.t[key] += now - self.last
-        self.last = now
-
-
 def _jacobi_scale(blocks: tuple[FloatArray, ...], structure: Any):
     """Scale the blocks in place by ``D = 1 / (1 + sqrt(diag))``: ``H <- D H D``, ``b <- D b``."""
     U, V, W, bc, bl = blocks
@@ -197,100 +186,139 @@ def _linear_system(problem: Any, kernels: Any, structure: Any, cams, points):
     return float(np.sum(rho)), (U, V, W, bc, bl)
 
 
-def optimize(problem: Any, config: LMConfig | None = None, kernels: Any = None) -> LMResult:
+@dataclasses.dataclass
+class _State:
+    """The LM iterate: parameters, robust chi2 and the damping schedule."""
+
+    cams: FloatArray
+    points: FloatArray
+    F: float
+    lam: float = 0.0
+    nu: float = 2.0
+
+
+def _initial_lambda(problem: Any, blocks: tuple[FloatArray, ...], tau: float) -> float:
+    """``lam0 = tau * max diag(H)`` over the free cameras and points (g2o computeLambdaInit)."""
+    U, V = blocks[0], blocks[1]
+    diag = np.concatenate(
+        [np.diagonal(U[problem.cam_free], axis1=1, axis2=2).ravel(),
+         np.diagonal(V[problem.point_free], axis1=1, axis2=2).ravel()]
+    )  # fmt: skip
+    return tau * float(diag.max()) if diag.size else tau
+
+
+def _trial(problem, k, st, state: _State, blocks, D, b, clock: StageClock) -> tuple[float, Any]:
+    """One damped solve at ``state.lam``: the gain ratio rho (-1 on failure) and the new
+    ``(cams, points, F)`` when the step was computed."""
+    U, V, W, bc, bl = blocks
+    with clock("schur_complement"):
+        S, rhs, Vinv = k.schur.schur_complement(U, V, W, bc, bl, state.lam, st)
+    with clock("numerical_decomposition"):
+        dc = _schur.solve_reduced(S, rhs, st)
+    if dc is None:
+        return -1.0, None
+    with clock("schur_complement"):
+        dl = k.schur.back_substitute(Vinv, W, bl, dc, st)
+    dx = np.concatenate([dc.ravel(), dl.ravel()])  # the (scaled) step
+    if D is not None:  # back to the unscaled variables for the update
+        dc, dl = dc * D[0], dl * D[1]
+    with clock("update_solution"):
+        new_cams, new_points = problem.retract(state.cams, state.points, dc, dl)
+    with clock("compute_error"):
+        F_new = robust_chi2(problem, k, new_cams, new_points)
+    scale = float(dx @ (state.lam * dx + b)) + 1e-3
+    # g2o accepts rho > 0; F_new < F also guards a negative scale (round-off)
+    ok = np.isfinite(F_new) and F_new < state.F
+    return ((state.F - F_new) / scale if ok else -1.0), (new_cams, new_points, F_new)
+
+
+def _damping_update(state: _State, rho: float, cfg: LMConfig) -> None:
+    """g2o's schedule: shrink lam by ``clamp(1 - (2 rho - 1)^3, 1/3, 2/3)`` on success,
+    otherwise multiply it by nu and double nu."""
+    if rho > 0.0:
+        alpha = 1.0 - (2.0 * rho - 1.0) ** 3
+        state.lam *= max(cfg.good_step_lower, min(alpha, cfg.good_step_upper))
+        state.nu = 2.0
+    else:
+        state.lam *= state.nu
+        state.nu *= 2.0
+
+
+def optimize(
+    problem: Any,
+    config: LMConfig | None = None,
+    kernels: Any = None,
+    clock: StageClock | None = None,
+) -> LMResult:
     """Run g2o's Levenberg–Marquardt with Schur-complement solves.
 
     Args:
         problem: a ``BALProblem`` or ``PinholeProblem``.
         config: :class:`LMConfig` (default ``LMConfig()``).
-        kernels: kernel set, ``mslam_ref.ba`` (default) or ``mslam_fast.ba``.
+        kernels: an object with ``cameras`` and ``schur`` modules (default: the reference's).
+        clock: where the per-stage seconds are summed (default: a new
+            ``mslam_ref.ba.profile.StageClock``); ``LMResult.profile`` reports it.
 
     Returns:
         An :class:`LMResult`; ``final_cost <= initial_cost`` always holds.
     """
     cfg = config if config is not None else LMConfig()
     k = kernels if kernels is not None else _default_kernels()
-    clock = _Clock()
-    cams, points = problem.params()
-    clock.lap("initialize")
-    st = _schur.build_structure(
-        problem.obs_cam, problem.obs_pt, len(cams), len(points), problem.cam_dof
-    )
-    clock.lap("build_structure")
-    F0 = F = robust_chi2(problem, k, cams, points)
-    clock.lap("compute_error")
-    lam, nu, history, stop = 0.0, 2.0, [], "iterations"
-    it = 0
+    clock = clock if clock is not None else StageClock(PROFILE_KEYS)
+    with clock("initialize"):
+        cams, points = problem.params()
+    with clock("build_structure"):
+        st = _schur.build_structure(
+            problem.obs_cam, problem.obs_pt, len(cams), len(points), problem.cam_dof
+        )
+    with clock("compute_error"):
+        state = _State(cams, points, robust_chi2(problem, k, cams, points))
+    F0, history, stop = state.F, [], "iterations"
     for it in range(cfg.iterations):
-        F, blocks = _linear_system(problem, k, st, cams, points)
-        D = None
-        if cfg.jacobi_scaling:
-            blocks, D = _jacobi_scale(blocks, st)
-        clock.lap("build_system")
+        with clock("build_system"):
+            state.F, blocks = _linear_system(problem, k, st, state.cams, state.points)
+            D = None
+            if cfg.jacobi_scaling:
+                blocks, D = _jacobi_scale(blocks, st)
         if it == 0:
-            U, V = blocks[0], blocks[1]
-            diag = np.concatenate(
-                [np.diagonal(U[problem.cam_free], axis1=1, axis2=2).ravel(),
-                 np.diagonal(V[problem.point_free], axis1=1, axis2=2).ravel()]
-            )  # fmt: skip
-            lam = cfg.tau * float(diag.max()) if diag.size else cfg.tau
+            state.lam = _initial_lambda(problem, blocks, cfg.tau)
         b = np.concatenate([blocks[3].ravel(), blocks[4].ravel()])
-        rho, trials, F_prev = -1.0, 0, F
+        rho, trials, F_prev = -1.0, 0, state.F
         while rho <= 0.0 and trials < cfg.max_trials:
             trials += 1
-            U, V, W, bc, bl = blocks
-            S, rhs, Vinv = k.schur.schur_complement(U, V, W, bc, bl, lam, st)
-            clock.lap("schur_complement")
-            dc = _schur.solve_reduced(S, rhs, st)
-            clock.lap("numerical_decomposition")
-            step = None if dc is None else (dc, k.schur.back_substitute(Vinv, W, bl, dc, st))
-            clock.lap("schur_complement")
-            if step is not None:
-                dc, dl = step
-                if D is not None:  # back to the unscaled variables for the update
-                    dc, dl = dc * D[0], dl * D[1]
-                new_cams, new_points = problem.retract(cams, points, dc, dl)
-                clock.lap("update_solution")
-                F_new = robust_chi2(problem, k, new_cams, new_points)
-                clock.lap("compute_error")
-                dx = np.concatenate([step[0].ravel(), step[1].ravel()])  # (scaled) step
-                scale = float(dx @ (lam * dx + b)) + 1e-3
-                # g2o accepts rho > 0; F_new < F also guards a negative scale (round-off)
-                ok = np.isfinite(F_new) and F_new < F
-                rho = (F - F_new) / scale if ok else -1.0
-            else:
-                rho = -1.0
+            rho, new = _trial(problem, k, st, state, blocks, D, b, clock)
             if rho > 0.0:
-                alpha = 1.0 - (2.0 * rho - 1.0) ** 3
-                lam *= max(cfg.good_step_lower, min(alpha, cfg.good_step_upper))
-                nu = 2.0
-                cams, points, F = new_cams, new_points, F_new
-            else:
-                lam *= nu
-                nu *= 2.0
+                state.cams, state.points, state.F = new
+            _damping_update(state, rho, cfg)
         history.append(
-            {"iteration": it, "cost": 0.5 * F, "lambda": lam, "trials": trials,
+            {"iteration": it, "cost": 0.5 * state.F, "lambda": state.lam, "trials": trials,
              "accepted": rho > 0.0}
         )  # fmt: skip
-        if rho <= 0.0:
-            stop = "no_decrease"
+        stop = _stop_reason(rho, state, F_prev, cfg)
+        if stop:
             break
-        if not np.isfinite(lam):
-            stop = "lambda"
-            break
-        if cfg.function_tolerance > 0.0 and (F_prev - F) <= cfg.function_tolerance * F_prev:
-            stop = "function_tolerance"
-            break
-    r = problem.residuals(k, cams, points)
-    chi2 = problem.information * np.sum(r * r, axis=-1)
-    clock.lap("compute_error")
+    stop = stop or "iterations"
+    with clock("compute_error"):
+        r = problem.residuals(k, state.cams, state.points)
+        chi2 = problem.information * np.sum(r * r, axis=-1)
     return LMResult(
-        problem=problem.with_params(cams, points),
+        problem=problem.with_params(state.cams, state.points),
         initial_cost=0.5 * F0,
-        final_cost=0.5 * F,
+        final_cost=0.5 * state.F,
         iterations=len(history),
         history=tuple(history),
-        profile=clock.t,
+        profile=dict(clock.totals),
         edge_chi2=chi2,
         stop_reason=stop,
     )
+
+
+def _stop_reason(rho: float, state: _State, F_prev: float, cfg: LMConfig) -> str:
+    """Why the loop stops after this iteration ("" to go on)."""
+    if rho <= 0.0:
+        return "no_decrease"
+    if not np.isfinite(state.lam):
+        return "lambda"
+    if cfg.function_tolerance > 0.0 and (F_prev - state.F) <= cfg.function_tolerance * F_prev:
+        return "function_tolerance"
+    return ""
