@@ -75,10 +75,13 @@ def solve_backend(system: Any) -> dict[str, Any] | None:
         raise FloatingPointError("backend.solve returned non-finite poses")
     system.keyframes.set_poses(T_new)
     system.stats.backend_solves += 1
-    record = {"keyframes": len(system.keyframes), "edges": len(system.graph)}
-    for key in ("iterations", "cost", "step_norms", "failed"):
-        if hasattr(info, key):
-            val = getattr(info, key)
-            record[key] = val.tolist() if isinstance(val, np.ndarray) else val
+    record = {
+        "keyframes": len(system.keyframes),
+        "edges": len(system.graph),
+        "iterations": info.iterations,
+        "cost": info.cost,
+        "step_norms": list(info.step_norms),
+        "failed": info.failed,
+    }
     system.backend_history.append(record)
     return record

@@ -239,7 +239,7 @@ class SlamSystem:
             T_CkCf, info = kr.tracking.solve(
                 X_f, X_k_arg, Q_k, valid_opt, T_init, self.tracking_cfg, self.K
             )
-        if getattr(info, "failed", False) or not np.all(np.isfinite(T_CkCf)):
+        if info.failed or not np.all(np.isfinite(T_CkCf)):
             self._record(frame, -1, None, "lost")
             return "lost"
         T_CkCf = np.asarray(T_CkCf, np.float64)

@@ -87,7 +87,7 @@ def evaluate_run(system: Any, sequence: Any) -> dict[str, Any]:
 
     idx, ts, T = system.frame_poses()
     out: dict[str, Any] = {"path_length_est": _path_length(T[:, :3]) if len(T) else 0.0}
-    gt = getattr(sequence, "T_WC", None)
+    gt = sequence.T_WC
     if gt is None or len(T) < 3:
         out["path_length"] = out["path_length_est"]
         return out
