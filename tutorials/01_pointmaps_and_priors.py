@@ -23,12 +23,8 @@
 # 5. upstream's resize to the network resolution and the matching intrinsics.
 
 # %%
-import tempfile
 from pathlib import Path
 
-import matplotlib
-
-matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
@@ -38,19 +34,18 @@ from mslam_ref.priors import check_prediction
 from mslam_ref.priors.synthetic import SyntheticPrior, SyntheticPriorConfig
 from mslam_ref.synthetic import make_sequence
 
-FIGS = Path(tempfile.mkdtemp(prefix="mslam_tutorial01_"))
 
 
 def show(images, titles, name, cmap=None):
-    """Plot a row of images and save the figure under a temporary folder."""
+    """Plot a row of images (``name`` is the figure's label)."""
     fig, axes = plt.subplots(1, len(images), figsize=(3.2 * len(images), 2.6))
     for ax, img, title in zip(np.atleast_1d(axes), images, titles):
         ax.imshow(img, cmap=cmap)
         ax.set_title(title, fontsize=9)
         ax.axis("off")
+    fig.suptitle(name, fontsize=9)
     fig.tight_layout()
-    fig.savefig(FIGS / f"{name}.png", dpi=70)
-    plt.close(fig)
+    plt.show()
 
 
 def to_rgb(X):
@@ -106,7 +101,7 @@ print(f"pixel (80, 60) of j -> ({u:.2f}, {v:.2f}) in i, z = {p[2]:.4f} m")
 # depth noise growing like z², a few outliers, a per-pair scale (pointmaps are up to scale)
 # and a small Sim(3) error on `X_ji`. Confidences fall where the noise is high (far away,
 # depth edges, outliers, pixels of j that camera i cannot see). Descriptors are a fixed random
-# projection of normalised 5x5 colour patches.
+# projection of normalised 7x7 colour patches (`DescriptorConfig.patch = 7`).
 
 # %%
 prior = SyntheticPrior(seq, SyntheticPriorConfig(seed=0))
@@ -147,9 +142,11 @@ assert np.median(true_sim) > np.median(off_sim)
 # the ground truth, which we only use here to measure the error.
 
 # %%
-DATA = Path.cwd().resolve().parent / "shared" / "data"
-if not DATA.is_dir():
-    DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+# ../shared/data sits beside the checkout. A notebook has no __file__, so look beside the
+# checkout the installed package comes from (reference/mslam_ref -> the checkout's parent).
+import mslam_ref
+
+DATA = Path(mslam_ref.__file__).resolve().parents[3] / "shared" / "data"
 SEVEN = DATA / "seq" / "7scenes_redkitchen_f000000-000149"
 if SEVEN.is_dir():
     from mslam_ref.datasets import load_sequence
@@ -179,8 +176,8 @@ else:
 # %% [markdown]
 # ## 5. Upstream's network resolution
 #
-# MASt3R runs at long side 512 with both sides multiples of 16 (spec §10.1). Intrinsics follow
-# by a plain multiplication and the crop offset (spec §10.2).
+# MASt3R runs at long side 512 with both sides multiples of 16 (docs/upstream.md §10.1). Intrinsics follow
+# by a plain multiplication and the crop offset (docs/upstream.md §10.2).
 
 # %%
 big = np.zeros((480, 640, 3), np.uint8)
@@ -188,4 +185,3 @@ img512, tr = resize_img(big, 512)
 K640 = np.array([[585.0, 0, 320], [0, 585, 240], [0, 0, 1]])
 print("640x480 ->", img512.shape[1::-1], "K =", intrinsics_after_resize(K640, tr).round(2).tolist())
 assert img512.shape[:2] == (384, 512)
-print(f"figures written to {FIGS}")

@@ -85,7 +85,7 @@ ax[2].imshow(np.linalg.norm(gy, axis=-1))
 ax[2].set_title("‖∂R/∂v‖")
 for a in ax:
     a.axis("off")
-plt.close(fig)
+plt.show()
 
 # %%
 # Checkpoint: unit rays; on a linear ramp the Scharr derivative is the slope.
@@ -134,7 +134,7 @@ ax[1].semilogy(costs, "o-")
 ax[1].axhline(matching.MatchingConfig().convergence_thresh, ls="--", c="k")
 ax[1].set_xlabel("iteration")
 ax[1].set_ylabel("‖ψ − t‖²")
-plt.close(fig)
+plt.show()
 
 # %%
 # Checkpoint: accepted steps only, so the cost never rises; it ends below the threshold
@@ -174,7 +174,7 @@ ax[0].set_title("|error| (px) of valid matches, no refinement")
 plt.colorbar(im, ax=ax[0])
 ax[1].imshow((valid0.astype(int) + visible).reshape(H, W), cmap="gray")
 ax[1].set_title("white: valid & visible, grey: visible only")
-plt.close(fig)
+plt.show()
 
 # %%
 # Checkpoint: nearly all valid visible pixels within one pixel of the truth; the occlusion
@@ -216,7 +216,7 @@ ax[0].legend()
 ax[0].set_xlabel("error (px, clipped at 5)")
 ax[1].imshow(np.where(ok, err1, np.nan).reshape(H, W), vmin=0, vmax=2)
 ax[1].set_title("|error| after refinement")
-plt.close(fig)
+plt.show()
 
 # %%
 # Checkpoint: same validity, score never lower, median error smaller.
@@ -254,7 +254,7 @@ if fast_matching is not None:
     ax[0].set_title("reference: |error|")
     ax[1].imshow(np.where(valid_f, pixel_error(idx_f), np.nan).reshape(H, W), vmin=0, vmax=2)
     ax[1].set_title("fast (Taichi): |error|")
-    plt.close(fig)
+    plt.show()
     # Checkpoint: the two implementations agree.
     assert same >= 0.999
 

@@ -102,7 +102,7 @@ ax.set_title("keyframe graph")
 ax.set_aspect("equal", adjustable="datalim")
 ax.legend(fontsize=8)
 fig.tight_layout()
-plt.close(fig)
+plt.show()
 
 # %% [markdown]
 # ## Every frame, not only keyframes

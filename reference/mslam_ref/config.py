@@ -1,4 +1,4 @@
-"""Spec §11 — configuration: upstream's YAML files, ``inherit``, command-line overrides.
+"""docs/upstream.md §11 — configuration: upstream's YAML files, ``inherit``, command-line overrides.
 
 Upstream keeps every setting in ``config/*.yaml`` (``base.yaml`` and files that ``inherit`` it,
 e.g. ``calib.yaml``) and reads them into one global dictionary. Here the same files are read
@@ -69,7 +69,7 @@ _Loader.add_implicit_resolver(
 
 @dataclass(frozen=True)
 class DatasetConfig:
-    """``dataset.*`` keys (spec §10.3, §11).
+    """``dataset.*`` keys (docs/upstream.md §10.3, §11).
 
     Attributes:
         subsample: keep every n-th frame (>= 1).
@@ -89,7 +89,7 @@ class DatasetConfig:
 
 @dataclass(frozen=True)
 class RetrievalSettings:
-    """``retrieval.*`` keys: candidates per query and the score threshold (spec §7.2)."""
+    """``retrieval.*`` keys: candidates per query and the score threshold (docs/upstream.md §7.2)."""
 
     k: int = 3
     min_thresh: float = 5e-3
@@ -97,7 +97,7 @@ class RetrievalSettings:
 
 @dataclass(frozen=True)
 class RelocConfig:
-    """``reloc.*`` keys (spec §9): the stricter match fraction and all-or-nothing acceptance."""
+    """``reloc.*`` keys (docs/upstream.md §9): the stricter match fraction and all-or-nothing acceptance."""
 
     min_match_frac: float = 0.3
     strict: bool = True

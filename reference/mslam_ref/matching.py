@@ -14,7 +14,7 @@ a coarse-to-fine search for the best descriptor similarity around it.
 
 Upstream: mast3r_slam/matching.py (match, match_iterative_proj, prep_for_iter_proj),
 mast3r_slam/image.py::img_gradient, mast3r_slam/backend/src/matching_kernels.cu
-(iter_proj_kernel, refine_matches_kernel). Quirks reproduced on purpose (spec §4, §15.4):
+(iter_proj_kernel, refine_matches_kernel). Quirks reproduced on purpose (docs/upstream.md §4, §15.4):
 truncation (not rounding) of the sub-pixel match, clamping to [1, W−2] × [1, H−2], the
 unnormalised-gradient Jacobian, the distance test before refinement, and ``best ≈ 0`` at the
 start of refinement (we take exactly 0.0; see :func:`refine_matches`).
@@ -59,7 +59,7 @@ __all__ = [
 NORM_EPS = 1e-12
 
 #: Initial best score of the refinement. Upstream: ``numeric_limits<at::Half>::min()``, which is
-#: 0 for an unspecialised ``numeric_limits`` or 6.1e-5 for a specialised half (spec §16.6). We
+#: 0 for an unspecialised ``numeric_limits`` or 6.1e-5 for a specialised half (docs/upstream.md §16.6). We
 #: take 0.0: only candidates with a strictly positive cosine similarity can move a match.
 REFINE_BEST_INIT = 0.0
 
@@ -70,7 +70,7 @@ DET_MIN = 1e-30
 
 @dataclasses.dataclass(frozen=True)
 class MatchingConfig:
-    """``matching:`` block of upstream's config/base.yaml (spec §11), upstream key names.
+    """``matching:`` block of upstream's config/base.yaml (docs/upstream.md §11), upstream key names.
 
     Attributes:
         max_iter: LM iterations per pixel, all of them run (no early exit).

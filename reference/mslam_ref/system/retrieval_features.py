@@ -1,4 +1,4 @@
-"""Spec §7.1–7.2 — the system's retrieval index: keyframe features and the codebook.
+"""docs/upstream.md §7.1–7.2 — the system's retrieval index: keyframe features and the codebook.
 
 Upstream's retrieval database scores keyframes by ASMK over encoder tokens with a codebook
 trained offline (64k words, shipped with the checkpoint). We have neither, so the system
@@ -8,7 +8,7 @@ first keyframe, by k-means on that keyframe's dense descriptors (a sample of at 
 top-``nfeat`` descriptors by descriptor confidence Q (``retrieval.select_features``).
 
 Database ids equal keyframe indices: every keyframe is inserted exactly once, in order, and a
-failed relocalisation inserts nothing (spec §7.2).
+failed relocalisation inserts nothing (docs/upstream.md §7.2).
 
 Public names, in reading order:
     RetrievalIndex
