@@ -107,7 +107,8 @@ class LMResult:
         problem: the problem with the optimised parameters.
         initial_cost, final_cost: ``F / 2`` before and after.
         iterations: LM iterations run.
-        history: per iteration ``{"iteration", "cost", "lambda", "trials", "accepted"}``.
+        history: per iteration ``{"iteration", "cost", "lambda", "trials", "accepted", "gain"}``
+            (``lambda`` after the iteration's update; ``gain`` the gain ratio of its last trial).
         profile: seconds per stage, keys ``PROFILE_KEYS``.
         edge_chi2: (O,) ``omega |r|^2`` per edge at the end, without the kernel (0 for dropped
             edges), as cuda-bundle-adjustment's ``chiSquared(e)``.
@@ -267,7 +268,7 @@ def optimize(problem: Any, config: LMConfig | None = None, kernels: Any = None) 
                 nu *= 2.0
         history.append(
             {"iteration": it, "cost": 0.5 * F, "lambda": lam, "trials": trials,
-             "accepted": rho > 0.0}
+             "accepted": rho > 0.0, "gain": rho}
         )  # fmt: skip
         if rho <= 0.0:
             stop = "no_decrease"
