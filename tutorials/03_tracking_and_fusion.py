@@ -65,7 +65,10 @@ rng = np.random.default_rng(0)
 bad = rng.random(H * W) < 0.05
 idx_f2k[bad] = rng.integers(0, H * W, bad.sum())
 X_f = X_fr.reshape(-1, 3)[idx_f2k]
-Q = np.full(H * W, 2.0)
+# Match quality (paper Eq. 5's q): q_n = sqrt(Q_f[idx_f2k[n]] · Q_k[n]) from the two descriptor
+# confidences of the pair; both are 2 here, so q = 2 on every pixel.
+Q = tracking.match_quality(np.full(H * W, 2.0), np.full(H * W, 2.0), idx_f2k)
+assert np.allclose(Q, 2.0)
 print(f"valid matches: {valid.mean():.0%}, corrupted: {bad.mean():.0%}")
 assert valid.mean() > 0.5
 
