@@ -165,6 +165,12 @@ ax.set_ylabel("robust cost")
 plt.show()
 assert info.converged and not info.failed and np.linalg.norm(err[3:6]) < 5e-3
 
+# After tracking, the new-keyframe test (§3.4, threshold ω_k = 0.333): frame 2 still shares
+# most of the keyframe's view, so no new keyframe yet.
+new_kf = tracking.needs_new_keyframe(idx_f2k, valid, valid & (Q > cfg.Q_conf), cfg)
+print("new keyframe needed:", new_kf)
+assert not new_kf
+
 # %% [markdown]
 # ## Calibrated tracking
 # With K, both pointmaps are first put on their known rays (only depth survives) and the

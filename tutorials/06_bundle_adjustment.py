@@ -75,7 +75,12 @@ print(f"M={M} cameras, P={P} points, O={O} observations ({problem.is_stereo.sum(
 # %%
 cams, pts = problem.params()
 st = schur.build_structure(problem.obs_cam, problem.obs_pt, M, P, problem.cam_dof)
-r, Jc, Jp = problem.linearize(ref_ba, cams, pts)
+r, Jc, Jp = problem.linearize(ref_ba, cams, pts)  # -> ref_ba.cameras.pinhole_linearize (masked)
+r_cam, Jc_cam, Jp_cam = ref_ba.cameras.pinhole_linearize(
+    cams, problem.intrinsics, pts, problem.obs_cam, problem.obs_pt, problem.meas,
+    problem.is_stereo.astype(float),
+)  # fmt: skip
+assert np.allclose(r_cam, r)  # residual = projection - measurement, (O, 3) with stereo u_r
 U, V, W, bc, bl = schur.normal_blocks(r, Jc, Jp, problem.information, st)
 
 d = problem.cam_dof
