@@ -18,11 +18,7 @@ def _rows() -> list[list[str]]:
     rows = []
     for line in MAP.read_text().splitlines():
         cells = [c.strip() for c in line.strip().strip("|").split("|")]
-        if (
-            len(cells) == 5
-            and cells[0] not in ("paper", "ba.md")
-            and not set(cells[0]) <= {"-"}
-        ):
+        if len(cells) == 5 and cells[0] not in ("paper", "ba.md") and not set(cells[0]) <= {"-"}:
             rows.append(cells)
     return rows
 

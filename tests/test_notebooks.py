@@ -4,11 +4,13 @@ The script run (tests/test_tutorials.py) checks the asserts; this test checks wh
 the notebook or of the documentation site sees: no cell fails, and every tutorial displays at
 least ``MIN_FIGURES`` figures (a ``plt.close(fig)`` or a figure saved to a file instead of shown
 would hide them). Needs the ``dev`` extra (jupytext, nbclient, ipykernel); CI installs it.
+Executed notebooks are cached in ``build/notebooks/`` (keyed by the tutorial and the library
+sources), where the documentation build (tools/mkdocs_hooks.py) picks them up.
 """
 
 from __future__ import annotations
 
-import os
+import importlib.util
 from pathlib import Path
 
 import pytest
@@ -32,25 +34,24 @@ def _figures(nb) -> int:
     )
 
 
-def execute(path: Path, cwd: Path):
-    """The tutorial as an executed notebook (the kernel runs in ``cwd``)."""
-    nb = jupytext.read(path)
-    env_backup = os.environ.get("MPLBACKEND")
-    os.environ.pop("MPLBACKEND", None)  # the kernel must use the inline backend
-    try:
-        client = nbclient.NotebookClient(
-            nb, timeout=300, kernel_name="python3", resources={"metadata": {"path": str(cwd)}}
-        )
-        client.execute()
-    finally:
-        if env_backup is not None:
-            os.environ["MPLBACKEND"] = env_backup
-    return nb
+def _hooks():
+    """tools/mkdocs_hooks.py: executes a tutorial into the site's notebook cache."""
+    spec = importlib.util.spec_from_file_location(
+        "mslam_mkdocs_hooks", ROOT / "tools" / "mkdocs_hooks.py"
+    )
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
 @pytest.mark.parametrize("path", TUTORIALS, ids=lambda p: p.stem)
-def test_tutorial_notebook(path: Path, tmp_path: Path) -> None:
-    nb = execute(path, tmp_path)
+def test_tutorial_notebook(path: Path) -> None:
+    """Executed in a temporary folder; the result also feeds the site build (same cache)."""
+    import nbformat
+
+    nb = nbformat.read(_hooks().executed_notebook(path), as_version=4)
+    errors = [o for c in nb.cells for o in c.get("outputs", []) if o.get("output_type") == "error"]
+    assert not errors, f"{path.name}: {errors[0].get('ename')}: {errors[0].get('evalue')}"
     n = _figures(nb)
     assert n >= MIN_FIGURES, f"{path.name}: {n} figures shown inline, expected >= {MIN_FIGURES}"
 

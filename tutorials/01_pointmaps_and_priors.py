@@ -39,7 +39,6 @@ from mslam_ref.priors.synthetic import SyntheticPrior, SyntheticPriorConfig
 from mslam_ref.synthetic import make_sequence
 
 
-
 def show(images, titles, name, cmap=None):
     """Plot a row of images (``name`` is the figure's label)."""
     fig, axes = plt.subplots(1, len(images), figsize=(3.2 * len(images), 2.6))

@@ -159,7 +159,9 @@ for _ in range(3):
         p_mine, lam = p_try, lam / 10
     else:
         lam *= 10
-p_lib, _ = matching.iter_proj(RG, X21.reshape(-1, 3)[n : n + 1], start, matching.MatchingConfig(max_iter=3))
+p_lib, _ = matching.iter_proj(
+    RG, X21.reshape(-1, 3)[n : n + 1], start, matching.MatchingConfig(max_iter=3)
+)
 print("from scratch", p_mine, " library", p_lib[0])
 assert np.allclose(p_mine, p_lib[0], atol=1e-9)
 
@@ -300,7 +302,9 @@ if fast_matching is not None:
 # 2(1 - cos θ) = 4 sin²(θ/2); arcsin keeps tiny angles accurate where arccos(1 - x) rounds to 0
 ex1 = float(np.degrees(2.0 * np.arcsin(np.sqrt(costs[-1]) / 2.0)))
 ex2 = float(np.mean(idx1[valid0 & valid1] != idx0[valid0 & valid1]))
-print(f"final angle {ex1:.2e} deg ({3600 * ex1:.3f} arcsec); refinement moves {ex2:.1%} of the valid matches")
+print(
+    f"final angle {ex1:.2e} deg ({3600 * ex1:.3f} arcsec); refinement moves {ex2:.1%} of the valid matches"
+)
 
 # %%
 # Check

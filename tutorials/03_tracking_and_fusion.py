@@ -237,7 +237,11 @@ for _ in range(10):
     Xn = X_true + r2.normal(0, 1, X_true.shape) * sigma[:, None]
     Cn = 1.0 + 0.05 / sigma
     first = Xn if first is None else first
-    state = fusion.init_pointmap(Xn, Cn, fcfg) if state is None else fusion.update_pointmap(state, Xn, Cn, fcfg)
+    state = (
+        fusion.init_pointmap(Xn, Cn, fcfg)
+        if state is None
+        else fusion.update_pointmap(state, Xn, Cn, fcfg)
+    )
 row = slice((H // 2) * W, (H // 2 + 1) * W)
 fig, ax = plt.subplots(figsize=(6, 3))
 ax.plot(first[row, 0], first[row, 2], ".", color="0.6", label="one prediction")

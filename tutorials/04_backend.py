@@ -95,7 +95,9 @@ H_mine = np.einsum("nc,nca,ncb->ab", Wc, Jb, Jb)
 g_mine = np.einsum("nc,nc,nca->a", Wc, e, Jb)
 H_lib = np.block([[Hs[b0, 0], Hs[b0, 1]], [Hs[b0, 2], Hs[b0, 3]]])  # [H_ii, H_ij, H_ji, H_jj]
 g_lib = gs[b0].ravel()  # [g_i, g_j]
-print(f"block {b0} = ({ii[b0]} <- {jj[b0]}): max |H_mine - H_lib| = {np.abs(H_mine - H_lib).max():.2e}")
+print(
+    f"block {b0} = ({ii[b0]} <- {jj[b0]}): max |H_mine - H_lib| = {np.abs(H_mine - H_lib).max():.2e}"
+)
 np.testing.assert_allclose(H_mine, H_lib, rtol=1e-9, atol=1e-9 * np.abs(H_lib).max())
 np.testing.assert_allclose(g_mine, g_lib, rtol=1e-9, atol=1e-9 * np.abs(g_lib).max())
 # J_i = -J_j, so the four 7x7 sub-blocks are ±H_jj
@@ -125,7 +127,9 @@ fig, ax = plt.subplots(1, 3, figsize=(12, 3.8))
 ax[0].spy(H_full, markersize=1)
 for blk in (0, n - 1):
     other = n - 1 - blk
-    ax[0].add_patch(plt.Rectangle((7 * other - 0.5, 7 * blk - 0.5), 7, 7, fill=False, color="r", lw=2))
+    ax[0].add_patch(
+        plt.Rectangle((7 * other - 0.5, 7 * blk - 0.5), 7, 7, fill=False, color="r", lw=2)
+    )
 ax[0].set_title("full H (7N x 7N): loop blocks in red")
 ax[1].spy(A, markersize=1)
 ax[1].set_title(f"pinned A: {A.shape[0]}x{A.shape[1]}")
@@ -214,6 +218,17 @@ T_noloop, _ = backend.solve(
 )
 ex1 = traj_err(T_noloop) / traj_err(T1)
 print(f"without the loop blocks the error is {ex1:.2f}x the error with them")
+fig, ax = plt.subplots(figsize=(5, 4))
+for T, style, label in (
+    (T_true, "k-o", "truth"),
+    (T1, "b-.", "with loop blocks"),
+    (T_noloop, "r--x", "without"),
+):
+    ax.plot(T[:, 0], T[:, 1], style, label=label)
+ax.set_aspect("equal", adjustable="datalim")
+ax.legend()
+ax.set_title("keyframe positions after the backend")
+plt.show()
 # Solution 2
 Hs_ray, gs_ray = backend.linearize(T_true, X, C, ii, jj, idx, valid, Q, backend.BackendConfig())
 H_ray = backend.assemble_system(Hs_ray, gs_ray, ii, jj, n)[0].toarray()

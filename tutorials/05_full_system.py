@@ -155,7 +155,9 @@ system_nolc, _ = run_slam(open_source("synthetic:loop:24:64x48", cfg_nolc), cfg_
 assert not [e for e in system_nolc.graph.edges if e.kind == "retrieval"]
 kf_ts_nolc = np.array([kf.frame.timestamp for kf in system_nolc.keyframes])
 ate_nolc = evaluate.ate(kf_ts_nolc, system_nolc.keyframes.poses(), seq.timestamps, seq.T_WC)
-print(f"keyframe ATE without loop closure {100 * ate_nolc.rmse:.2f} cm, with {100 * ate_after.rmse:.2f} cm")
+print(
+    f"keyframe ATE without loop closure {100 * ate_nolc.rmse:.2f} cm, with {100 * ate_after.rmse:.2f} cm"
+)
 fig, ax = plt.subplots(figsize=(6, 3))
 ax.plot(100 * ate_nolc.errors, "o--", color="C1", label="without loop closure")
 ax.plot(100 * ate_after.errors, "o-", color="C0", label="with loop closure")

@@ -59,7 +59,9 @@ images = list(range(0, 36, 3))  # every third frame plays a keyframe
 pred = {i: prior.pair(seq[i], seq[i]) for i in images}  # mono prediction: D and Q of image i
 cfg = retrieval.RetrievalConfig()
 feats = {i: retrieval.select_features(pred[i].D_ii, pred[i].Q_ii, cfg.nfeat) for i in images}
-codebook = retrieval.train_codebook(pred[0].D_ii.reshape(-1, pred[0].D_ii.shape[-1])[::2], 64, seed=0)
+codebook = retrieval.train_codebook(
+    pred[0].D_ii.reshape(-1, pred[0].D_ii.shape[-1])[::2], 64, seed=0
+)
 print(f"{len(images)} images, {len(feats[0])} local features each, codebook {codebook.shape}")
 
 # %% [markdown]
@@ -135,7 +137,11 @@ cands = db_prev.query(feats[q], k=3, min_thresh=5e-3)
 print("candidates (image, score):", [(images[c], round(s, 4)) for c, s in cands])
 fig, ax = plt.subplots(figsize=(6, 2.8))
 sc = db_prev.scores(feats[q])
-ax.bar([str(i) for i in images[:-1]], sc, color=["C3" if k in [c for c, _ in cands] else "C0" for k in range(len(sc))])
+ax.bar(
+    [str(i) for i in images[:-1]],
+    sc,
+    color=["C3" if k in [c for c, _ in cands] else "C0" for k in range(len(sc))],
+)
 ax.axhline(5e-3, color="k", ls="--", lw=0.8)
 ax.set_xlabel("database image")
 ax.set_ylabel(f"score of image {q}")
@@ -178,7 +184,9 @@ assert np.mean((idx_r == idx_f) & (val_r == val_f)) > 0.999
 
 # %%
 cfg_sys = load_config()
-system, meta = run_slam(open_source("synthetic:jump:30:48x36", cfg_sys), cfg_sys, load_kernels("fast"))
+system, meta = run_slam(
+    open_source("synthetic:jump:30:48x36", cfg_sys), cfg_sys, load_kernels("fast")
+)
 print(system.stats)
 status = [p.status for p in system.poses]
 jump_seq = open_source("synthetic:jump:30:48x36", cfg_sys).sequence
@@ -208,7 +216,9 @@ assert system.stats.relocalisations >= 1 and "relocalised" in status
 
 # %%
 # Solution
-single = retrieval.RetrievalDatabase(codebook, retrieval.RetrievalConfig(query_multiple_assignment=1))
+single = retrieval.RetrievalDatabase(
+    codebook, retrieval.RetrievalConfig(query_multiple_assignment=1)
+)
 single.insert(feats[q])
 ex1 = float(single.scores(feats[q])[0])
 ex2 = cfg_sys.reloc.min_match_frac

@@ -160,7 +160,9 @@ junk = gt_p.copy()
 junk[1::2] += 1.0
 r_even = evaluate.ate(gt_ts[::2], junk[::2], gt_ts, gt_p, align="sim3")
 r_all = evaluate.ate(gt_ts, junk, gt_ts, gt_p, align="sim3")
-print(f"every other frame 1 m off: ATE on the even frames {r_even.rmse:.1e} m, on all {r_all.rmse:.2f} m")
+print(
+    f"every other frame 1 m off: ATE on the even frames {r_even.rmse:.1e} m, on all {r_all.rmse:.2f} m"
+)
 assert r_even.rmse < 1e-9 < 0.1 < r_all.rmse
 
 # %% [markdown]
@@ -172,8 +174,9 @@ assert r_even.rmse < 1e-9 < 0.1 < r_all.rmse
 # noisy and covers only the left half of the view — accurate but incomplete.
 
 # %%
-from mslam_ref.pointmap import backproject
 from scipy.spatial import cKDTree
+
+from mslam_ref.pointmap import backproject
 
 ref_pts = backproject(seq[0].depth, seq.K).reshape(-1, 3)
 est_pts = backproject(seq[0].depth, seq.K)[:, : seq.width // 2].reshape(-1, 3)
@@ -183,7 +186,9 @@ acc, comp, chamfer = evaluate.reconstruction_metrics(est_pts, ref_pts)
 d_acc = np.minimum(cKDTree(ref_pts).query(est_pts)[0], 0.5)
 d_comp = np.minimum(cKDTree(est_pts).query(ref_pts)[0], 0.5)
 assert np.isclose(acc, np.sqrt(np.mean(d_acc**2))) and np.isclose(comp, np.sqrt(np.mean(d_comp**2)))
-print(f"accuracy {100 * acc:.1f} cm, completion {100 * comp:.1f} cm, chamfer {100 * chamfer:.1f} cm")
+print(
+    f"accuracy {100 * acc:.1f} cm, completion {100 * comp:.1f} cm, chamfer {100 * chamfer:.1f} cm"
+)
 assert acc < comp  # what is there is right; half of the scene is missing
 
 # %% [markdown]

@@ -17,7 +17,9 @@ from mslam_ref.ba import lm, schur, synthetic
 
 def _max_diag(problem) -> float:
     cams, pts = problem.params()
-    st = schur.build_structure(problem.obs_cam, problem.obs_pt, len(cams), len(pts), problem.cam_dof)
+    st = schur.build_structure(
+        problem.obs_cam, problem.obs_pt, len(cams), len(pts), problem.cam_dof
+    )
     r, Jc, Jp = problem.linearize(ref_ba, cams, pts)
     s = problem.information * np.sum(r * r, axis=-1)
     _, w = problem.robust(s)
@@ -51,7 +53,9 @@ def test_lambda_schedule_replays(tau: float, perturb: float) -> None:
     problem, _ = synthetic.make_pinhole_problem(n_cams=4, n_points=30, perturb=perturb, seed=1)
     res = lm.optimize(problem, lm.LMConfig(iterations=15, tau=tau))
     lam0 = tau * _max_diag(problem)
-    np.testing.assert_allclose([h["lambda"] for h in res.history], _replay(res.history, lam0), rtol=1e-12)
+    np.testing.assert_allclose(
+        [h["lambda"] for h in res.history], _replay(res.history, lam0), rtol=1e-12
+    )
     for h in res.history:
         assert h["accepted"] == (h["gain"] > 0.0)
         assert 1 <= h["trials"] <= 10
