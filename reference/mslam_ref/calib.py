@@ -139,7 +139,8 @@ def calib_residual_and_jacobian(
 ) -> tuple[FloatArray, FloatArray, BoolArray]:
     """Pixel + log-depth residual of calibrated tracking and its Jacobian.
 
-    Paper: §3.7 (calibrated tracking). Upstream: tracker.py::opt_pose_calib_sim3 (one step).
+    Paper: §3.7 (calibrated tracking; the pixel error of Eq. 10, depth as log-depth). Upstream:
+    tracker.py::opt_pose_calib_sim3 (one step).
 
         measurement  z_n = [u_n, v_n, log Zk_n]     (u_n, v_n) = integer pixel n of the keyframe
         prediction   h_n = [u, v, log z](P_n),      P_n = T_CkCf · Xf_n

@@ -8,7 +8,7 @@ in the ray image of camera 1, starting from an initial guess (the identity, or t
 frame's matches). The integer match then gets a 3-D distance (occlusion) test and is refined by
 a coarse-to-fine search for the best descriptor similarity around it.
 
-    p*(n) = argmin_p ‖ψ(X11(p)) − ψ(X21[n])‖²                   (§3.2, LM over p)
+    p*(n) = argmin_p ‖ψ(X11(p)) − ψ(X21[n])‖²                   (§3.2 Eq. 2, LM over p)
     valid = converged ∧ ‖X11[⌊p*⌋] − X21[n]‖ < dist_thresh       (occlusion test)
     p(n)  = argmax_{p ∈ window(⌊p*⌋)} D21[n] · D11[p]            (descriptor refinement)
 
