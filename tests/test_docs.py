@@ -96,7 +96,7 @@ def test_no_citations_outside_the_repository() -> None:
     """Docs, docstrings and tutorials cite the paper or a docs/ page, not design notes elsewhere."""
     bad = []
     pattern = re.compile(r"\bspec §|\bSpec §|shared/spec|cuda_ba\.md")
-    for folder in ("docs", "reference", "fast", "tutorials"):
+    for folder in ("docs", "reference", "fast", "app", "tutorials", "benchmarks"):
         for path in (ROOT / folder).rglob("*"):
             if path.suffix in (".py", ".md", ".yaml") and ".venv" not in path.parts:
                 for k, line in enumerate(path.read_text().splitlines(), 1):
