@@ -322,4 +322,4 @@ print("exercises: all correct")
 # * `fast/mslam_fast/matching.py` and `fast/mslam_fast/_kernels/matching.py` — the Taichi twin.
 # * `tests/reference/test_matching.py`, `tests/parity/test_matching.py`,
 #   `benchmarks/bench_matching.py`, and the design notes in `docs/matching.md`
-#   (paper_map row "§3.2 matching").
+#   (the matching rows of docs/paper_map.md).

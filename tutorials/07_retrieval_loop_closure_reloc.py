@@ -34,6 +34,7 @@
 # (upstream ships a trained one). `docs/evaluation.md` §6 measures how well this stands in.
 
 # %%
+import importlib
 import time
 
 import matplotlib.pyplot as plt
@@ -42,16 +43,22 @@ import numpy as np
 from mslam_ref import matching, retrieval
 from mslam_ref.synthetic import make_sequence
 
-try:  # the application layer (priors, config, system) lives in `mslam` after issue 12
-    from mslam.config import load_config
-    from mslam.kernels import load_kernels
-    from mslam.priors.synthetic import SyntheticPrior, SyntheticPriorConfig
-    from mslam.system import open_source, run_slam
-except ImportError:
-    from mslam_ref.config import load_config
-    from mslam_ref.kernels import load_kernels
-    from mslam_ref.priors.synthetic import SyntheticPrior, SyntheticPriorConfig
-    from mslam_ref.system import open_source, run_slam
+
+def app_module(name):
+    """A module of the application layer: `mslam.NAME`, or `mslam_ref.NAME` before the split."""
+    for package in ("mslam", "mslam_ref"):
+        try:
+            return importlib.import_module(f"{package}.{name}")
+        except ModuleNotFoundError:
+            continue
+    raise ModuleNotFoundError(name)
+
+
+load_config = app_module("config").load_config
+load_kernels = app_module("kernels").load_kernels
+SyntheticPrior = app_module("priors.synthetic").SyntheticPrior
+SyntheticPriorConfig = app_module("priors.synthetic").SyntheticPriorConfig
+open_source, run_slam = app_module("system").open_source, app_module("system").run_slam
 
 seq = make_sequence("loop", n_frames=36, width=96, height=72, seed=0)
 prior = SyntheticPrior(seq, SyntheticPriorConfig(seed=0))

@@ -27,6 +27,7 @@
 # 4. the aligned positions with the fast Sim(3) kernel against the reference.
 
 # %%
+import importlib
 import time
 
 import matplotlib.pyplot as plt
@@ -35,10 +36,10 @@ import numpy as np
 from mslam_ref import sim3, so3
 from mslam_ref.synthetic import make_sequence
 
-try:  # evaluation is part of the application layer (`mslam`) after issue 12
-    from mslam import evaluate
-except ImportError:
-    from mslam_ref import evaluate
+try:  # evaluation belongs to the application layer: `mslam.evaluate`, `mslam_ref.evaluate` before
+    evaluate = importlib.import_module("mslam.evaluate")
+except ModuleNotFoundError:
+    evaluate = importlib.import_module("mslam_ref.evaluate")
 
 seq = make_sequence("loop", n_frames=80, width=32, height=24, seed=0)
 gt_ts, gt_T = seq.timestamps, seq.T_WC
