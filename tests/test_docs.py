@@ -1,4 +1,6 @@
-"""docs/paper_map.md stays true: every function, test file and tutorial it names exists."""
+"""docs/paper_map.md stays true: every function, test file and tutorial it names exists, every
+tutorial it names for a row calls one of that row's functions, and no page cites files outside
+the repository."""
 
 from __future__ import annotations
 
@@ -16,11 +18,7 @@ def _rows() -> list[list[str]]:
     rows = []
     for line in MAP.read_text().splitlines():
         cells = [c.strip() for c in line.strip().strip("|").split("|")]
-        if (
-            len(cells) == 5
-            and cells[0] not in ("paper / spec", "spec")
-            and not set(cells[0]) <= {"-"}
-        ):
+        if len(cells) == 5 and cells[0] not in ("paper", "ba.md") and not set(cells[0]) <= {"-"}:
             rows.append(cells)
     return rows
 
@@ -68,3 +66,45 @@ def test_named_tests_and_tutorials_exist() -> None:
             if not list((ROOT / "tutorials").glob(f"{number}_*.py")):
                 missing.append(f"tutorial {number}")
     assert not missing, f"paper_map names missing tests/tutorials: {missing}"
+
+
+def _tutorial(number: str) -> Path:
+    (path,) = (ROOT / "tutorials").glob(f"{number}_*.py")
+    return path
+
+
+def test_tutorials_cover_their_rows() -> None:
+    """A tutorial named in a row uses (calls or imports) at least one of the row's functions."""
+    uncovered = []
+    for row in ROWS:
+        names = re.findall(r"`([A-Za-z_][\w.]*)`", row[1])
+        for number in re.findall(r"\b(\d\d)\b", row[4]):
+            text = _tutorial(number).read_text()
+            if not any(re.search(rf"\b{re.escape(n.split('.')[-1])}\b", text) for n in names):
+                uncovered.append(f"tutorial {number} does not use any of {names} ({row[0]})")
+    assert not uncovered, uncovered
+
+
+def test_every_tutorial_is_on_the_map() -> None:
+    text = MAP.read_text()
+    missing = [
+        p.stem for p in (ROOT / "tutorials").glob("[0-9][0-9]_*.py") if p.stem[:2] not in text
+    ]
+    assert not missing, f"tutorials the paper map never names: {missing}"
+
+
+def test_no_citations_outside_the_repository() -> None:
+    """Docs, docstrings and tutorials cite the paper or a docs/ page, not design notes elsewhere."""
+    bad = []
+    pattern = re.compile(r"\bspec §|\bSpec §|shared/spec|cuda_ba\.md")
+    for folder in ("docs", "reference", "fast", "app", "tutorials", "benchmarks"):
+        for path in (ROOT / folder).rglob("*"):
+            if path.suffix in (".py", ".md", ".yaml") and ".venv" not in path.parts:
+                for k, line in enumerate(path.read_text().splitlines(), 1):
+                    if pattern.search(line):
+                        bad.append(f"{path.relative_to(ROOT)}:{k}")
+    for name in ("README.md",):
+        for k, line in enumerate((ROOT / name).read_text().splitlines(), 1):
+            if pattern.search(line):
+                bad.append(f"{name}:{k}")
+    assert not bad, f"citations of files outside the repository: {bad}"

@@ -15,7 +15,11 @@
 # images, a 3-D point in camera i (`X_ii`, `X_ji`), a confidence `C >= 1`, a 24-D unit
 # descriptor `D` and a descriptor confidence `Q > 0`.
 #
-# This tutorial shows
+# The paper's only camera assumption (§3.1) is a *central* camera: every pointmap defines its
+# own camera through its rays `ψ(X) = X/‖X‖`.
+#
+# **What you will learn**
+#
 # 1. pixels, rays and back-projection (`mslam_ref.pointmap`);
 # 2. a synthetic scene with exact ground truth (`mslam_ref.synthetic`);
 # 3. the synthetic prior: ground truth plus a documented noise model;
@@ -23,12 +27,8 @@
 # 5. upstream's resize to the network resolution and the matching intrinsics.
 
 # %%
-import tempfile
 from pathlib import Path
 
-import matplotlib
-
-matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
@@ -39,19 +39,17 @@ from mslam.priors.synthetic import SyntheticPrior, SyntheticPriorConfig
 from mslam_ref import sim3, so3
 from mslam_ref.pointmap import backproject, camera_rays, intrinsics_after_resize
 
-FIGS = Path(tempfile.mkdtemp(prefix="mslam_tutorial01_"))
-
 
 def show(images, titles, name, cmap=None):
-    """Plot a row of images and save the figure under a temporary folder."""
+    """Plot a row of images (``name`` is the figure's label)."""
     fig, axes = plt.subplots(1, len(images), figsize=(3.2 * len(images), 2.6))
     for ax, img, title in zip(np.atleast_1d(axes), images, titles):
         ax.imshow(img, cmap=cmap)
         ax.set_title(title, fontsize=9)
         ax.axis("off")
+    fig.suptitle(name, fontsize=9)
     fig.tight_layout()
-    fig.savefig(FIGS / f"{name}.png", dpi=70)
-    plt.close(fig)
+    plt.show()
 
 
 def to_rgb(X):
@@ -92,6 +90,10 @@ show([fi.rgb, fi.depth, fj.rgb, fj.depth], ["rgb i", "depth i (m)", "rgb j", "de
 rays = camera_rays(seq.K, 120, 160)
 X_i = backproject(fi.depth, seq.K)
 assert np.allclose(X_i[..., 2], fi.depth)  # checkpoint: z of the pointmap is the depth
+# From scratch: X = z K^-1 [u, v, 1] on the pixel-centre grid equals the library.
+vv, uu = np.mgrid[0:120, 0:160]
+X_mine = fi.depth[..., None] * (np.stack([uu, vv, np.ones_like(uu)], -1) @ np.linalg.inv(seq.K).T)
+assert np.allclose(X_mine, X_i, atol=1e-12)
 show([to_rgb(rays), to_rgb(X_i)], ["rays (x, y, 1)", "pointmap X_ii"], "rays")
 
 # The centre pixel of frame j, seen from camera i, lies on frame i's surface:
@@ -107,7 +109,7 @@ print(f"pixel (80, 60) of j -> ({u:.2f}, {v:.2f}) in i, z = {p[2]:.4f} m")
 # depth noise growing like z², a few outliers, a per-pair scale (pointmaps are up to scale)
 # and a small Sim(3) error on `X_ji`. Confidences fall where the noise is high (far away,
 # depth edges, outliers, pixels of j that camera i cannot see). Descriptors are a fixed random
-# projection of normalised 5x5 colour patches.
+# projection of normalised 7x7 colour patches (`DescriptorConfig.patch = 7`).
 
 # %%
 prior = SyntheticPrior(seq, SyntheticPriorConfig(seed=0))
@@ -148,9 +150,11 @@ assert np.median(true_sim) > np.median(off_sim)
 # the ground truth, which we only use here to measure the error.
 
 # %%
-DATA = Path.cwd().resolve().parent / "shared" / "data"
-if not DATA.is_dir():
-    DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+# ../shared/data sits beside the checkout. A notebook has no __file__, so look beside the
+# checkout the installed package comes from (reference/mslam_ref -> the checkout's parent).
+import mslam_ref
+
+DATA = Path(mslam_ref.__file__).resolve().parents[3] / "shared" / "data"
 SEVEN = DATA / "seq" / "7scenes_redkitchen_f000000-000149"
 if SEVEN.is_dir():
     from mslam.datasets import load_sequence
@@ -180,8 +184,8 @@ else:
 # %% [markdown]
 # ## 5. Upstream's network resolution
 #
-# MASt3R runs at long side 512 with both sides multiples of 16 (spec §10.1). Intrinsics follow
-# by a plain multiplication and the crop offset (spec §10.2).
+# MASt3R runs at long side 512 with both sides multiples of 16 (docs/upstream.md §10.1). Intrinsics follow
+# by a plain multiplication and the crop offset (docs/upstream.md §10.2).
 
 # %%
 big = np.zeros((480, 640, 3), np.uint8)
@@ -189,4 +193,54 @@ img512, tr = resize_img(big, 512)
 K640 = np.array([[585.0, 0, 320], [0, 585, 240], [0, 0, 1]])
 print("640x480 ->", img512.shape[1::-1], "K =", intrinsics_after_resize(K640, tr).round(2).tolist())
 assert img512.shape[:2] == (384, 512)
-print(f"figures written to {FIGS}")
+
+# %% [markdown]
+# ## 6. Reference vs fast: moving a pointmap between cameras
+#
+# Pointmap matching and fusion start by moving points between cameras with a Sim(3) action.
+# `mslam_fast.sim3.act` is the Taichi twin of `mslam_ref.sim3.act`: same signature, same
+# numbers (the pointmap module itself has no fast twin; it is not on a hot path). At 19 200
+# points the kernel call overhead dominates, so the reference may well be faster here.
+
+# %%
+import time
+
+import mslam_fast
+import mslam_fast.sim3 as fast_sim3
+
+mslam_fast.init("cpu", "f64")
+X_j = backproject(fj.depth, seq.K).reshape(-1, 3)
+fast_sim3.act(T_ij, X_j[:2])  # compile
+t0 = time.perf_counter()
+ref_pts = sim3.act(T_ij, X_j)
+t1 = time.perf_counter()
+fast_pts = fast_sim3.act(T_ij, X_j)
+t2 = time.perf_counter()
+print(f"{len(X_j)} points: reference {1e3 * (t1 - t0):.2f} ms, fast {1e3 * (t2 - t1):.2f} ms; "
+      f"max difference {np.abs(fast_pts - ref_pts).max():.1e}")  # fmt: skip
+assert np.allclose(fast_pts, ref_pts, atol=1e-12)
+
+# %% [markdown]
+# ## Exercises
+#
+# 1. The rays `ψ(X_ii)` of a pointmap *are* its camera. From the ground-truth pointmap `X_i`,
+#    compute the angle (degrees) between the rays of the top-left and bottom-right pixels and
+#    store it in `ex1`; it must agree with the diagonal field of view that `K` implies.
+# 2. A 640x480 image with `fx = 585` is resized to MASt3R's 512x384. What is `fx` at the
+#    network resolution? Store it in `ex2`.
+#
+# The solutions follow; try first, then run the check cell.
+
+# %%
+# Solution
+psi = X_i / np.linalg.norm(X_i, axis=-1, keepdims=True)
+ex1 = float(np.degrees(np.arccos(np.clip(psi[0, 0] @ psi[-1, -1], -1, 1))))
+ex2 = 585.0 * 512 / 640
+
+# %%
+# Check
+corner = np.linalg.inv(seq.K) @ np.array([[0, 159], [0, 119], [1, 1]])
+fov = np.degrees(np.arccos((corner[:, 0] @ corner[:, 1]) / np.prod(np.linalg.norm(corner, axis=0))))
+assert abs(ex1 - fov) < 1e-9
+assert np.isclose(ex2, intrinsics_after_resize(K640, tr)[0, 0])
+print("exercises: all correct")

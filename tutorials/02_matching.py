@@ -24,7 +24,7 @@
 # takes a 3-D distance (occlusion) test, then refines the integer match by a coarse-to-fine
 # search for the best descriptor similarity.
 #
-# **You will see:** the ray image and its gradients, one pixel's LM path, a match-quality
+# **What you will learn:** paper Eq. 2–3 (the ray error is an angle), the ray image and its gradients, one pixel's LM path, a match-quality
 # image against ground truth, what refinement changes, and the NumPy reference beside the
 # Taichi kernel. **Prerequisites:** tutorials 00 (Sim(3)) and 01 (pointmaps and priors).
 
@@ -85,7 +85,7 @@ ax[2].imshow(np.linalg.norm(gy, axis=-1))
 ax[2].set_title("‖∂R/∂v‖")
 for a in ax:
     a.axis("off")
-plt.close(fig)
+plt.show()
 
 # %%
 # Checkpoint: unit rays; on a linear ramp the Scharr derivative is the slope.
@@ -134,7 +134,36 @@ ax[1].semilogy(costs, "o-")
 ax[1].axhline(matching.MatchingConfig().convergence_thresh, ls="--", c="k")
 ax[1].set_xlabel("iteration")
 ax[1].set_ylabel("‖ψ − t‖²")
-plt.close(fig)
+plt.show()
+
+# %% [markdown]
+# **From scratch.** Three LM iterations of that pixel in a few lines of NumPy, compared with the
+# library (the same bilinear samples, the same 2×2 solve, the same accept/reject rule).
+
+# %%
+t_ray = matching.normalize(X21.reshape(-1, 3)[n])
+p_mine, lam = np.clip(start[0], 1.0, [W - 2.0, H - 2.0]), matching.MatchingConfig().lambda_init
+
+
+def ray_cost(p):
+    S = matching.bilinear_sample(RG, p[None, 0], p[None, 1])[0]
+    e = S[:3] / np.linalg.norm(S[:3]) - t_ray
+    return e @ e, e, np.stack([S[3:6], S[6:9]], axis=1)  # cost, e, J (3x2)
+
+
+for _ in range(3):
+    c, e, J = ray_cost(p_mine)
+    step = np.linalg.solve(J.T @ J + lam * np.eye(2), -J.T @ e)
+    p_try = np.clip(p_mine + step, 1.0, [W - 2.0, H - 2.0])
+    if ray_cost(p_try)[0] < c:
+        p_mine, lam = p_try, lam / 10
+    else:
+        lam *= 10
+p_lib, _ = matching.iter_proj(
+    RG, X21.reshape(-1, 3)[n : n + 1], start, matching.MatchingConfig(max_iter=3)
+)
+print("from scratch", p_mine, " library", p_lib[0])
+assert np.allclose(p_mine, p_lib[0], atol=1e-9)
 
 # %%
 # Checkpoint: accepted steps only, so the cost never rises; it ends below the threshold
@@ -174,7 +203,7 @@ ax[0].set_title("|error| (px) of valid matches, no refinement")
 plt.colorbar(im, ax=ax[0])
 ax[1].imshow((valid0.astype(int) + visible).reshape(H, W), cmap="gray")
 ax[1].set_title("white: valid & visible, grey: visible only")
-plt.close(fig)
+plt.show()
 
 # %%
 # Checkpoint: nearly all valid visible pixels within one pixel of the truth; the occlusion
@@ -216,7 +245,7 @@ ax[0].legend()
 ax[0].set_xlabel("error (px, clipped at 5)")
 ax[1].imshow(np.where(ok, err1, np.nan).reshape(H, W), vmin=0, vmax=2)
 ax[1].set_title("|error| after refinement")
-plt.close(fig)
+plt.show()
 
 # %%
 # Checkpoint: same validity, score never lower, median error smaller.
@@ -254,9 +283,36 @@ if fast_matching is not None:
     ax[0].set_title("reference: |error|")
     ax[1].imshow(np.where(valid_f, pixel_error(idx_f), np.nan).reshape(H, W), vmin=0, vmax=2)
     ax[1].set_title("fast (Taichi): |error|")
-    plt.close(fig)
+    plt.show()
     # Checkpoint: the two implementations agree.
     assert same >= 0.999
+
+# %% [markdown]
+# ## Exercises
+#
+# 1. Paper Eq. 3 says `‖ψ1 − ψ2‖² = 2(1 − cos θ)`. Convert the final LM cost of the pixel of
+#    section 3 into the angle θ between the two rays, in degrees; store it in `ex1`.
+# 2. Which fraction of the valid matches does descriptor refinement move (a different integer
+#    pixel than without refinement)? Store it in `ex2`.
+#
+# The solutions follow; try first, then run the check cell.
+
+# %%
+# Solution
+# 2(1 - cos θ) = 4 sin²(θ/2); arcsin keeps tiny angles accurate where arccos(1 - x) rounds to 0
+ex1 = float(np.degrees(2.0 * np.arcsin(np.sqrt(costs[-1]) / 2.0)))
+ex2 = float(np.mean(idx1[valid0 & valid1] != idx0[valid0 & valid1]))
+print(
+    f"final angle {ex1:.2e} deg ({3600 * ex1:.3f} arcsec); refinement moves {ex2:.1%} of the valid matches"
+)
+
+# %%
+# Check
+r_end = matching.normalize(matching.bilinear_sample(RG, path[-1:, 0], path[-1:, 1])[0, :3])
+theta = np.arctan2(np.linalg.norm(np.cross(r_end, t_ray)), r_end @ t_ray)  # stable angle
+assert np.isclose(np.radians(ex1), theta, rtol=1e-6, atol=1e-12)
+assert 0.0 < ex2 < 1.0
+print("exercises: all correct")
 
 # %% [markdown]
 # ## Where this lives in the code
@@ -266,4 +322,4 @@ if fast_matching is not None:
 # * `fast/mslam_fast/matching.py` and `fast/mslam_fast/_kernels/matching.py` — the Taichi twin.
 # * `tests/reference/test_matching.py`, `tests/parity/test_matching.py`,
 #   `benchmarks/bench_matching.py`, and the design notes in `docs/matching.md`
-#   (paper_map row "§3.2 matching").
+#   (the matching rows of docs/paper_map.md).

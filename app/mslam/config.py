@@ -1,4 +1,4 @@
-"""Spec §11 — configuration: upstream's YAML files, ``inherit``, command-line overrides.
+"""docs/upstream.md §11 — configuration: upstream's YAML files, ``inherit``, command-line overrides.
 
 Upstream keeps every setting in ``config/*.yaml`` (``base.yaml`` and files that ``inherit`` it,
 e.g. ``calib.yaml``) and reads them into one global dictionary. Here the same files are read
@@ -68,7 +68,7 @@ _Loader.add_implicit_resolver(
 
 @dataclass(frozen=True)
 class DatasetConfig:
-    """``dataset.*`` keys (spec §10.3, §11).
+    """``dataset.*`` keys (docs/upstream.md §10.3, §11).
 
     Attributes:
         subsample: keep every n-th frame (>= 1).
@@ -88,7 +88,7 @@ class DatasetConfig:
 
 @dataclass(frozen=True)
 class RelocConfig:
-    """``reloc.*`` keys (spec §9): the stricter match fraction and all-or-nothing acceptance."""
+    """``reloc.*`` keys (docs/upstream.md §9): the stricter match fraction and all-or-nothing acceptance."""
 
     min_match_frac: float = 0.3
     strict: bool = True

@@ -1,4 +1,4 @@
-"""Paper §4 (evaluation) — absolute trajectory error and dense-reconstruction metrics (spec §12).
+"""Paper §4 (evaluation) — absolute trajectory error and dense-reconstruction metrics (docs/upstream.md §12).
 
 The paper scores trajectories with ``evo_ape tum <gt> <estimate> -as``: the ATE RMSE of the
 translation part after a Umeyama Sim(3) alignment of *all* associated poses, with evo's default
@@ -197,7 +197,7 @@ def ate(
 ) -> AteResult:
     """Absolute trajectory error of the translation part, as ``evo_ape tum gt est [-a|-as]``.
 
-    Paper: §4 "we report ATE RMSE … with Sim(3) Umeyama alignment" (spec §12.1).
+    Paper: §4 "we report ATE RMSE … with Sim(3) Umeyama alignment" (docs/upstream.md §12.1).
     Upstream: MASt3R-SLAM scripts/eval_*.sh (``evo_ape tum <gt> <traj> -as``).
 
     ``e_i = ‖s R p_est,i + t − p_gt,j(i)‖`` over all associated pairs (i, j(i)); the alignment
@@ -272,7 +272,7 @@ def reconstruction_metrics(
 ) -> tuple[float, float, float]:
     """Accuracy, completion and chamfer distance of a point cloud against a reference (metres).
 
-    Paper: §4.2 / Table 3 (spec §12.1): "accuracy = RMSE of the nearest-neighbour distance from
+    Paper: §4.2 / Table 3 (docs/upstream.md §12.1): "accuracy = RMSE of the nearest-neighbour distance from
     the estimated points to the reference; completion = RMSE from the reference points to the
     estimate; both with a 0.5 m max-distance threshold; chamfer = (accuracy + completion) / 2".
     Upstream: none (the dense evaluation code is unreleased, issues #84 and #124).

@@ -1,4 +1,4 @@
-"""Paper §4 / upstream outputs — trajectory and point-cloud files (spec §13).
+"""Paper §4 / upstream outputs — trajectory and point-cloud files (docs/upstream.md §13).
 
 What a run writes and what the evaluation reads:
 

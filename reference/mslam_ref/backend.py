@@ -4,11 +4,14 @@ Every graph edge (i, j) holds matches both ways; it gives two *directed blocks*.
 (i <- j) loops over the pixels k of keyframe j, moves their canonical points into camera i
 with ``T_ij = T_WCi^-1 T_WCj`` and compares them with the canonical point of the matched
 pixel ``m = idx[k]`` of keyframe i: a ray + distance error without calibration, a pixel +
-log-depth error with known K (spec §8.2). Only poses are optimised (pointmaps are fixed).
+log-depth error with known K (paper Eq. 9 and Eq. 10). Only poses are optimised (pointmaps are fixed).
 Each block contributes a 14x14 Hessian block ``[[H_ii, H_ij], [H_ji, H_jj]]`` and gradient
 ``[g_i, g_j]``; they are summed into a sparse 7(K'-1) system over the K' keyframes in the
 graph, the first of which is held fixed (the gauge), solved by Cholesky and applied by left
-retraction, ten times (spec §8.3).
+retraction, ten times (paper §3.5: "at most 10 iterations"; docs/tracking_backend.md).
+Without the fixed pose the Hessian would have 7 zero eigenvalues (a Sim(3) of the whole map
+changes no residual): that is the gauge freedom the paper removes "by fixing the first 7-DoF
+Sim(3) pose".
 
 Sign convention (gn_kernels.cu): ``e = prediction - measurement``, ``J = de/dxi`` for left
 perturbations of the *world* poses, ``g = J^T W e`` and the step ``dx = -H^-1 g``.
@@ -149,7 +152,8 @@ def block_residual_and_jacobian(
 ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
     """Residuals, pose Jacobians and sqrt weights of one directed block (i <- j).
 
-    Paper: §3.5, Eq. (11). Upstream: gn_kernels.cu::ray_align_kernel / calib_proj_kernel.
+    Paper: §3.5, Eq. (9) (rays); §3.7, Eq. (10) (pixels, known K). Upstream:
+    gn_kernels.cu::ray_align_kernel / calib_proj_kernel.
 
         m = idx[k] if valid[k] else 0,  P = T_WCi^-1 T_WCj · Xj[k]
         ok = valid & q > Q_conf & C_i[m] > C_conf & C_j[k] > C_conf
@@ -300,7 +304,8 @@ def linearize(
 ) -> tuple[FloatArray, FloatArray, float]:
     """Hessian blocks, gradients and robust cost of the D directed blocks.
 
-    Paper: §3.5, Eq. (11)-(12). Upstream: gn_kernels.cu::ray_align_kernel /
+    Paper: §3.5, Eq. (9) and the 14x14 blocks of the 7N x 7N Hessian below it. Upstream:
+    gn_kernels.cu::ray_align_kernel /
     calib_proj_kernel (the per-block reduction). Per pixel and residual component c:
 
         W_c = huber(w_c e_c) w_c^2        (Huber per component, k = 1.345)
@@ -375,7 +380,8 @@ def solve(
 ) -> tuple[FloatArray, BackendInfo]:
     """Global Gauss-Newton over the poses of the keyframes in the graph.
 
-    Paper: §3.5. Upstream: global_opt.py::FactorGraph.solve_GN_rays / solve_GN_calib,
+    Paper: §3.5 (Gauss-Newton "as in Eq. (7)", sparse Cholesky). Upstream:
+    global_opt.py::FactorGraph.solve_GN_rays / solve_GN_calib,
     gn_kernels.cu::gauss_newton_rays / gauss_newton_calib.
 
         kf = sorted unique(ii ∪ jj); kf[:pin] fixed (gauge; upstream pin = 1)

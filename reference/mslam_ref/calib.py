@@ -4,7 +4,7 @@ With known intrinsics K, MASt3R-SLAM keeps the network's pointmaps but reads the
 the known camera rays*: only the depth of each canonical point survives
 (``constrain_points_to_ray``). Tracking then minimises a pixel reprojection error plus a
 log-depth error instead of the ray + distance error of the uncalibrated system
-(``calib_residual_and_jacobian``, spec §5.3). The 3-D point error of upstream's unused
+(``calib_residual_and_jacobian``, docs/upstream.md §5.3). The 3-D point error of upstream's unused
 ``point_align_kernel`` (the point-error ablation of Table 6) is ``point_residual_and_jacobian``.
 
 Residual convention of this module (tracker.py): ``r = z - h(T)`` (measurement minus
@@ -125,7 +125,8 @@ def calib_residual_and_jacobian(
 ) -> tuple[FloatArray, FloatArray, BoolArray]:
     """Pixel + log-depth residual of calibrated tracking and its Jacobian.
 
-    Paper: §3.7 (calibrated tracking). Upstream: tracker.py::opt_pose_calib_sim3 (one step).
+    Paper: §3.7 (calibrated tracking; the pixel error of Eq. 10, depth as log-depth). Upstream:
+    tracker.py::opt_pose_calib_sim3 (one step).
 
         measurement  z_n = [u_n, v_n, log Zk_n]     (u_n, v_n) = integer pixel n of the keyframe
         prediction   h_n = [u, v, log z](P_n),      P_n = T_CkCf · Xf_n
@@ -137,7 +138,7 @@ def calib_residual_and_jacobian(
     Args:
         T_CkCf: (8,) Sim(3) pose of frame f in keyframe k.
         X_f: (N, 3) or (H, W, 3) frame points matched to each keyframe pixel, in camera f,
-            **already constrained to their rays by the caller** (spec §5.1 step 6).
+            **already constrained to their rays by the caller** (docs/upstream.md §5.1).
         X_k: (H, W, 3) the keyframe's ray-constrained canonical pointmap (only z is used);
             its shape gives the pixel grid and the image size.
         K: (3, 3) intrinsics.

@@ -1,8 +1,10 @@
-"""Paper §3.4 — Pointmap fusion: a keyframe's canonical pointmap as a running average.
+"""Paper §3.3 — Pointmap fusion: a keyframe's canonical pointmap as a running average.
 
-Every time a frame is tracked against a keyframe, the network's prediction of the keyframe's
-own pointmap in that pair (moved into camera k with the estimated pose) is fused into the
-keyframe's *canonical* pointmap. The default is a confidence-weighted running average
+Every time a frame f is tracked against a keyframe k, the network's prediction of the
+keyframe's own pointmap in that pair, ``X^k_f`` (image k in camera f, pixel-aligned with k),
+is moved into camera k with the estimated pose and fused, with its confidence ``C^k_f``, into
+the keyframe's *canonical* pointmap: the fused quantity is ``T_kf · X^k_f`` (upstream
+``Xkf``, ``Ckf``), not the frame's own ``X^f_f``. The default is a confidence-weighted running average
 (paper Eq. 8); upstream ships five alternatives for the ablation of Table 5. Downstream code
 (matching masks, tracking, the backend) uses the *average* confidence ``C / N``.
 
@@ -142,7 +144,7 @@ def update_pointmap(
 ) -> PointmapState:
     """Fuse a new prediction ``(X', C')`` into the canonical pointmap.
 
-    Paper: §3.4, Eq. (8) (``weighted_pointmap``); Table 5 (the others).
+    Paper: §3.3, Eq. (8) (``weighted_pointmap``); Table 5 (the others).
     Upstream: frame.py::Frame.update_pointmap. Per pixel:
 
         weighted_pointmap   X <- (C X + C' X') / (C + C'),  C <- C + C',  N += 1

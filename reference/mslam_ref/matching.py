@@ -8,13 +8,13 @@ in the ray image of camera 1, starting from an initial guess (the identity, or t
 frame's matches). The integer match then gets a 3-D distance (occlusion) test and is refined by
 a coarse-to-fine search for the best descriptor similarity around it.
 
-    p*(n) = argmin_p ‖ψ(X11(p)) − ψ(X21[n])‖²                   (§3.2, LM over p)
+    p*(n) = argmin_p ‖ψ(X11(p)) − ψ(X21[n])‖²                   (§3.2 Eq. 2, LM over p)
     valid = converged ∧ ‖X11[⌊p*⌋] − X21[n]‖ < dist_thresh       (occlusion test)
     p(n)  = argmax_{p ∈ window(⌊p*⌋)} D21[n] · D11[p]            (descriptor refinement)
 
 Upstream: mast3r_slam/matching.py (match, match_iterative_proj, prep_for_iter_proj),
 mast3r_slam/image.py::img_gradient, mast3r_slam/backend/src/matching_kernels.cu
-(iter_proj_kernel, refine_matches_kernel). Quirks reproduced on purpose (spec §4, §15.4):
+(iter_proj_kernel, refine_matches_kernel). Quirks reproduced on purpose (docs/upstream.md §4, §15.4):
 truncation (not rounding) of the sub-pixel match, clamping to [1, W−2] × [1, H−2], the
 unnormalised-gradient Jacobian, the distance test before refinement, and ``best ≈ 0`` at the
 start of refinement (we take exactly 0.0; see :func:`refine_matches`).
@@ -59,7 +59,7 @@ __all__ = [
 NORM_EPS = 1e-12
 
 #: Initial best score of the refinement. Upstream: ``numeric_limits<at::Half>::min()``, which is
-#: 0 for an unspecialised ``numeric_limits`` or 6.1e-5 for a specialised half (spec §16.6). We
+#: 0 for an unspecialised ``numeric_limits`` or 6.1e-5 for a specialised half (docs/upstream.md §16.6). We
 #: take 0.0: only candidates with a strictly positive cosine similarity can move a match.
 REFINE_BEST_INIT = 0.0
 
@@ -70,7 +70,7 @@ DET_MIN = 1e-30
 
 @dataclasses.dataclass(frozen=True)
 class MatchingConfig:
-    """``matching:`` block of upstream's config/base.yaml (spec §11), upstream key names.
+    """``matching:`` block of upstream's config/base.yaml (docs/upstream.md §11), upstream key names.
 
     Attributes:
         max_iter: LM iterations per pixel, all of them run (no early exit).

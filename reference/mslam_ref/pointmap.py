@@ -1,9 +1,9 @@
-"""Paper §3.1 and §10 of the spec — pixels, rays, pointmaps and the network-resolution image.
+"""Paper §3.1 and docs/upstream.md §10 — pixels, rays, pointmaps and the network-resolution image.
 
 A *pointmap* is an (H, W, 3) image of 3-D points, one per pixel, in some camera frame. With
 known intrinsics K, a metric depth image z gives one by back-projection along the camera
 rays; without K, MASt3R predicts it directly. Pixel convention everywhere in the system
-(spec §10.2): the integer pixel ``(u, v) = (column, row)`` is the pixel *centre*, so the ray
+(docs/upstream.md §10.2): the integer pixel ``(u, v) = (column, row)`` is the pixel *centre*, so the ray
 of pixel (u, v) is ``[(u - cx)/fx, (v - cy)/fy, 1]`` and back-projection is
 ``X = z · [(u - cx)/fx, (v - cy)/fy, 1]``.
 
@@ -87,7 +87,7 @@ def backproject(depth: FloatArray, K: FloatArray) -> FloatArray:
     """Pointmap of a z-depth image: ``X(u, v) = z(u, v) · [(u - cx)/fx, (v - cy)/fy, 1]``.
 
     Paper: §3.1. Upstream: dataloader / geometry back-projection with the pixel-centre
-    convention (spec §10.2).
+    convention (docs/upstream.md §10.2).
 
     Args:
         depth: (H, W) z-depth in metres (any finite values; 0 gives the camera centre).
@@ -145,7 +145,7 @@ def scale_intrinsics(
 
     With ``half_pixel=True`` (exact for pixel-centre sampling as in ``cv2.resize``):
     ``cx' = (cx + 0.5) W2/W1 - 0.5``; with ``half_pixel=False`` upstream's plain multiplication
-    ``cx' = cx W2/W1`` (spec §10.2). Focal lengths scale by ``W2/W1`` and ``H2/H1``.
+    ``cx' = cx W2/W1`` (docs/upstream.md §10.2). Focal lengths scale by ``W2/W1`` and ``H2/H1``.
 
     Returns:
         (3, 3) float64 intrinsics.
@@ -166,7 +166,7 @@ def scale_intrinsics(
 def intrinsics_after_resize(
     K: FloatArray, transform: tuple[float, float, float, float]
 ) -> FloatArray:
-    """Intrinsics of the resized and cropped image (upstream's ``K_frame``, spec §10.2).
+    """Intrinsics of the resized and cropped image (upstream's ``K_frame``, docs/upstream.md §10.2).
 
     Upstream: dataloader.py::Intrinsics.from_calib. ``fx' = fx / scale_w``,
     ``cx' = cx / scale_w - half_crop_w`` (plain multiplication, no half-pixel correction).

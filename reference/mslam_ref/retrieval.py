@@ -1,7 +1,7 @@
-"""Paper §3.4 — loop-closure candidates by image retrieval: ASMK over local features (spec §7.1–7.2).
+"""Paper §3.4 — loop-closure candidates by image retrieval: ASMK over local features (docs/upstream.md §7.1–7.2).
 
 A new keyframe queries a database of all earlier keyframes; the best ``k`` with a score above
-``min_thresh`` become loop-closure edge candidates (then checked by matching, spec §7.3), and the
+``min_thresh`` become loop-closure edge candidates (then checked by matching, docs/upstream.md §7.3), and the
 keyframe is inserted. Upstream uses ASMK (Tolias et al., "Image search with selective match
 kernels", IJCV 2016) with binary signatures over MASt3R's encoder features and a trained 64k-word
 codebook. Here the local features are the prior's per-pixel descriptors ``D (H, W, F)`` at the

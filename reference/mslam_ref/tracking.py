@@ -3,10 +3,17 @@
 Each keyframe pixel n is matched to a frame pixel ``idx_f2k[n]``; the frame's point there,
 ``Xf_n`` (camera f), should land on the keyframe's canonical point ``Xk_n`` (camera k) once
 moved by the relative similarity ``T_CkCf``. Without calibration the error is measured as
-a *ray* (direction, 3) plus a lightly weighted *distance* (1) — spec §5.2; with known K as a
-pixel (2) plus log-depth (1) error (``mslam_ref.calib``, spec §5.3). Residuals are whitened
-by ``sqrt(q)/sigma``, Huber-weighted per component, and the 7x7 normal equations
-``H tau = g`` are solved by Cholesky; ``T_CkCf <- Exp(tau) T_CkCf`` (left retraction).
+a *ray* (direction, 3) plus a lightly weighted *distance* (1) — paper Eq. (6); with known K
+as a pixel (2) plus log-depth (1) error (``mslam_ref.calib``, paper §3.7). Residuals are
+whitened by ``sqrt(q)/sigma``, Huber-weighted per component, and the 7x7 normal equations
+``H tau = g`` (paper Eq. 7) are solved by Cholesky; ``T_CkCf <- Exp(tau) T_CkCf`` (left
+retraction, paper Eq. 1).
+
+Weights. The paper divides each residual by ``w(q, sigma^2) = sigma^2 / q`` (Eq. 5), i.e. it
+treats ``sigma^2 / q`` as the *variance* of the residual. Whitening by the square root of the
+information, ``r -> sqrt(q)/sigma · r``, gives exactly the IRLS weight ``W = q / sigma^2`` in
+``J^T W J`` of Eq. (7); that is what the code (and upstream) does. Matches with
+matches whose confidence ``Q <= Q_conf`` get weight 0 (the paper's ``w = inf``). See docs/tracking_backend.md.
 
 Sign convention (tracker.py): ``r = z - h(T)``, ``J = dr/dxi = -dh/dxi``, ``H = A^T A``,
 ``g = -A^T b`` with ``A = a J``, ``b = a r`` and ``a`` the robust sqrt information.
@@ -98,7 +105,7 @@ class TrackingInfo:
     costs: tuple[float, ...] = ()
 
 
-# --- frontend helpers (spec §5.1, §5.5) ------------------------------------------------------
+# --- frontend helpers (paper §3.3-3.4; docs/upstream.md §5.1, §5.5) ------------------------------------------------------
 
 
 def match_quality(Q_ff: FloatArray, Q_kf: FloatArray, idx_f2k: IntArray) -> FloatArray:
@@ -156,7 +163,7 @@ def tracking_masks(
 
 def match_fraction(valid_opt: BoolArray) -> float:
     """Share of keyframe pixels usable for tracking; below ``min_match_frac`` the frame is
-    skipped and relocalisation is tried (spec §5.1 step 8)."""
+    skipped and relocalisation is tried (docs/upstream.md §5.1)."""
     v = as_flat_bool(valid_opt, "valid_opt")
     return float(v.mean()) if len(v) else 0.0
 
@@ -169,7 +176,7 @@ def needs_new_keyframe(
 ) -> bool:
     """New-keyframe test: too few good matches or too few distinct frame pixels reached.
 
-    Paper: §3.3 (end). Upstream: tracker.py::track (spec §5.5; the code counts distinct
+    Paper: §3.4 (first sentence, threshold ω_k). Upstream: tracker.py::track (docs/upstream.md §5.5; the code counts distinct
     *frame* pixels, the paper says keyframe pixels).
 
         match_frac_k  = mean(valid_kf)
@@ -213,11 +220,12 @@ def ray_dist_residual_and_jacobian(
 ) -> tuple[FloatArray, FloatArray]:
     """Ray + distance residual of uncalibrated tracking and its Jacobian.
 
-    Paper: §3.3, Eq. (6)-(7). Upstream: tracker.py::opt_pose_ray_dist_sim3,
+    Paper: §3.3, Eq. (6) (ray error; distance term in the text below it). Upstream:
+    tracker.py::opt_pose_ray_dist_sim3,
     geometry.py::point_to_ray_dist.
 
         P_n = T_CkCf · Xf_n,  psi(X) = X/|X|
-        r_n = [psi(Xk_n) - psi(P_n),  |Xk_n| - |P_n|]                        (4)
+        r_n = [psi(Xk_n) - psi(P_n),  |Xk_n| - |P_n|]                        (Eq. 6)
         J_n = -[[(I - psi psi^T)/|P|], [psi^T]] · [I | -[P]x | P]
             = -[[(I - psi psi^T)/|P| | -[psi]x | 0], [psi^T | 0 | |P|]]      (4 x 7)
 
@@ -280,7 +288,7 @@ def linearize(
 ) -> tuple[FloatArray, FloatArray, float]:
     """Robust normal equations of one IRLS step at the current estimate.
 
-    Paper: §3.3, Eq. (9)-(10). Upstream: tracker.py::solve (and the residual set-up of
+    Paper: §3.3, Eq. (5) (weights) and Eq. (7) (normal equations). Upstream: tracker.py::solve (and the residual set-up of
     opt_pose_ray_dist_sim3 / opt_pose_calib_sim3).
 
         sqrt_info = valid · sqrt(q) · [1/sigma_ray x3, 1/sigma_dist]        (uncalibrated)
@@ -375,7 +383,8 @@ def solve(
 ) -> tuple[FloatArray, TrackingInfo]:
     """Relative pose ``T_CkCf`` by IRLS Gauss-Newton (all 7 DoF, scale included).
 
-    Paper: §3.3. Upstream: tracker.py::opt_pose_ray_dist_sim3 / opt_pose_calib_sim3.
+    Paper: §3.3, Eq. (7) and Eq. (1) (the update). Upstream: tracker.py::opt_pose_ray_dist_sim3 /
+    opt_pose_calib_sim3.
 
         repeat up to max_iters:
             H, g, cost = linearize(T)          (cost at the current, pre-update estimate)

@@ -1,4 +1,4 @@
-"""``mslam eval ESTIMATE GROUNDTRUTH`` — ATE of a trajectory file against ground truth (spec §12).
+"""``mslam eval ESTIMATE GROUNDTRUTH`` — ATE of a trajectory file against ground truth (docs/upstream.md §12).
 
 Both files may be TUM (``timestamp tx ty tz qx qy qz qw``), KITTI (12 numbers per line) or an
 EuRoC ground-truth csv; the format is detected from the content (``mslam.formats.read_trajectory``).

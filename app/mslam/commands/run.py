@@ -1,4 +1,4 @@
-"""``mslam run`` — the SLAM system on a sequence, with outputs in ``--out DIR`` (spec §13).
+"""``mslam run`` — the SLAM system on a sequence, with outputs in ``--out DIR`` (docs/upstream.md §13).
 
 ::
 

@@ -1,4 +1,4 @@
-"""Spec §10 — input sequences: frames, loaders for every supported layout, calibration files.
+"""docs/upstream.md §10 — input sequences: frames, loaders for every supported layout, calibration files.
 
 ``load_sequence(source)`` dispatches on the source (upstream ``load_dataset`` dispatches on
 path components; here on the folder's content):

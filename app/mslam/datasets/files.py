@@ -1,4 +1,4 @@
-"""Spec §10.2–10.3 — the common part of every file-based loader.
+"""docs/upstream.md §10.2–10.3 — the common part of every file-based loader.
 
 A :class:`FileSequence` holds per-frame file paths, timestamps and optional ground truth, and
 turns file *i* into a :class:`Frame`: read the image (and depth), undistort when the

@@ -1,4 +1,4 @@
-"""Spec §10.3 — loaders for 7-Scenes folders, EuRoC, plain image folders and video files.
+"""docs/upstream.md §10.3 — loaders for 7-Scenes folders, EuRoC, plain image folders and video files.
 
 * 7-Scenes: ``frame-XXXXXX.color.{png,jpg}`` (natsorted), ``frame-XXXXXX.depth.png``
   (millimetres, depth scale 1000), ``frame-XXXXXX.pose.txt`` (4x4 camera-to-world ground truth).
@@ -156,7 +156,7 @@ def load_image_folder(folder, calib=None, size=None) -> FileSequence:
 
 
 class VideoSequence(FrameSequence):
-    """Frames of a video file via ``cv2.VideoCapture`` (upstream MP4Dataset; spec §10.3).
+    """Frames of a video file via ``cv2.VideoCapture`` (upstream MP4Dataset; docs/upstream.md §10.3).
 
     Timestamps are ``k / fps`` for the k-th decoded frame; with ``subsample = s`` frame i is
     video frame ``i · s``. Frames are decoded sequentially; random access seeks.

@@ -30,7 +30,7 @@ def resize_img(
 ) -> tuple[np.ndarray, tuple[float, float, float, float]]:
     """Upstream's resize and centre crop of an RGB image to the network resolution.
 
-    Upstream: mast3r_slam/mast3r_utils.py::resize_img (spec §10.1). For ``size = 512`` the long
+    Upstream: mast3r_slam/mast3r_utils.py::resize_img (docs/upstream.md §10.1). For ``size = 512`` the long
     side becomes 512 (``new = round(x · 512 / max(W1, H1))``), then a centre crop with
     ``cx = W//2, cy = H//2, halfw = ((2 cx)//16)·8, halfh = ((2 cy)//16)·8`` (``halfh = 3 halfw/4``
     for a square image unless ``square_ok``) makes both sides multiples of 16. For ``size = 224``

@@ -1,4 +1,4 @@
-"""Spec §10 — reading images, depth maps, calibration files and pose files, with clear errors.
+"""docs/upstream.md §10 — reading images, depth maps, calibration files and pose files, with clear errors.
 
 Every reader names the offending file (and line, for text files) in its error. Depth images
 are 16-bit PNGs scaled by ``depth_scale`` (TUM: 5000 per metre, 7-Scenes: 1000); 0 and 65535
@@ -41,7 +41,7 @@ DEPTH_INVALID = (0, 65535)
 
 @dataclass(frozen=True)
 class Calibration:
-    """Camera calibration in upstream's YAML form (``--calib`` file, spec §10.3).
+    """Camera calibration in upstream's YAML form (``--calib`` file, docs/upstream.md §10.3).
 
     Attributes:
         width, height: image size the intrinsics refer to.

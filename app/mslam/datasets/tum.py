@@ -1,4 +1,4 @@
-"""Spec §10.3 — the TUM RGB-D layout: reading it, and writing any sequence into it.
+"""docs/upstream.md §10.3 — the TUM RGB-D layout: reading it, and writing any sequence into it.
 
 Layout: ``rgb.txt`` and ``depth.txt`` (``timestamp filename``), ``associations.txt``
 (``t_rgb rgb_file t_depth depth_file``, from TUM's associate.py), ``groundtruth.txt``
@@ -30,7 +30,7 @@ from mslam_ref.conventions import FloatArray
 
 __all__ = ["TUM_CALIB", "load_tum", "write_tum_sequence"]
 
-#: Upstream's built-in TUM calibrations (config/intrinsics; spec §10.3), 640x480.
+#: Upstream's built-in TUM calibrations (config/intrinsics; docs/upstream.md §10.3), 640x480.
 TUM_CALIB = {
     "freiburg1": [517.3, 516.5, 318.6, 255.3, 0.2624, -0.9531, -0.0054, 0.0026, 1.1633],
     "freiburg2": [520.9, 521.0, 325.1, 249.7, 0.2312, -0.7849, -0.0033, -0.0001, 0.9172],

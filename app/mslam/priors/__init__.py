@@ -1,4 +1,4 @@
-"""Paper §3 / spec §2 — where pointmaps come from: the prior protocol and its implementations.
+"""Paper §3 / docs/upstream.md §2 — where pointmaps come from: the prior protocol and its implementations.
 
 * :mod:`mslam.priors.base` — ``PairPrediction``, the ``Prior`` protocol, ``check_prediction``;
 * :mod:`mslam.priors.synthetic` — ground truth plus a documented noise model;

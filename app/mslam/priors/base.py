@@ -1,4 +1,4 @@
-"""Paper §3 / spec §2 — the prior protocol: what a two-view network gives the SLAM system.
+"""Paper §3 / docs/upstream.md §2 — the prior protocol: what a two-view network gives the SLAM system.
 
 MASt3R's asymmetric decoder, run on images (i, j), returns for *both* images a pointmap in
 camera i, a confidence, a dense descriptor and a descriptor confidence. Everything downstream
@@ -8,7 +8,7 @@ pointmaps — the network, a synthetic generator, an RGB-D camera — implements
 * ``mono(frame) -> (X_ii (H, W, 3), C_ii (H, W))`` — upstream ``mast3r_inference_mono``;
 * ``pair(frame_i, frame_j) -> PairPrediction`` — upstream ``mast3r_asymmetric_inference``.
 
-Invariants (spec §2.1 output activations): ``C >= 1``, ``‖D‖ = 1`` per pixel with F = 24,
+Invariants (docs/upstream.md §2.1 output activations): ``C >= 1``, ``‖D‖ = 1`` per pixel with F = 24,
 ``Q > 0``, all finite.
 
 Public names, in reading order:

@@ -2,7 +2,7 @@
 
 This project cannot ship MASt3R's 2.7 GB checkpoint; users who have it (and ``torch`` plus the
 ``naver/mast3r`` code on their path) get the genuine prior here. The adapter reproduces
-upstream's calls (spec §2): upstream's resize/crop to 512 and [-1, 1] normalisation
+upstream's calls (docs/upstream.md §2): upstream's resize/crop to 512 and [-1, 1] normalisation
 (``pointmap.resize_img``, ``pointmap.network_input``), one encoder call per frame (cached like
 upstream's ``frame.feat``), ``_decoder(feat1, pos1, feat2, pos2)`` and
 ``_downstream_head(1|2, tokens, true_shape)``. Outputs are at the network resolution (e.g.
@@ -11,7 +11,7 @@ upstream's ``frame.feat``), ``_decoder(feat1, pos1, feat2, pos2)`` and
 
 The network is any object with upstream's interface, so tests use a stand-in; tensor handling
 goes through a small *backend* (``TorchBackend`` by default, importing torch lazily). The
-output activations (spec §2.1) are also given in NumPy form for stand-ins that return raw
+output activations (docs/upstream.md §2.1) are also given in NumPy form for stand-ins that return raw
 head outputs (``Mast3rConfig.apply_activations``):
 
 * ``pts3d = v / ‖v‖ · (exp(‖v‖) − 1)``, ``conf = 1 + exp(x)``, ``desc = d / ‖d‖``,
@@ -230,7 +230,7 @@ class Mast3rPrior:
         return Frame(frame.index, frame.timestamp, img, None, frame.T_WC)
 
     def network_intrinsics(self, K: FloatArray, frame: Frame) -> FloatArray:
-        """``K`` of the network-resolution image (spec §10.2, plain multiplication)."""
+        """``K`` of the network-resolution image (docs/upstream.md §10.2, plain multiplication)."""
         _, tr = resize_img(frame.rgb, self.cfg.size)
         return intrinsics_after_resize(K, tr)
 

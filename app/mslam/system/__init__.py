@@ -1,4 +1,4 @@
-"""Paper §3 (spec §1) — the SLAM system end to end, single process and deterministic.
+"""Paper §3 (docs/upstream.md §1) — the SLAM system end to end, single process and deterministic.
 
 Upstream runs a frontend process (tracking), a backend process (graph and global
 optimisation, relocalisation) and a viewer, talking through shared memory. Here everything is

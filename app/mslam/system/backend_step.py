@@ -1,4 +1,4 @@
-"""Paper §3.5 (spec §1.5, §7.3, §8) — graph construction and the global backend, synchronously.
+"""Paper §3.5 (docs/upstream.md §1.5, §7.3, §8) — graph construction and the global backend, synchronously.
 
 Upstream runs these in a backend process; in single-thread mode the frontend waits for them.
 Here they are plain function calls after every new keyframe (and after a relocalisation):
@@ -57,7 +57,7 @@ def add_keyframe_edges(system: Any, k: int) -> int:
 def solve_backend(system: Any) -> dict[str, Any] | None:
     """Global Gauss–Newton over every keyframe with an edge; writes the poses back.
 
-    Upstream: global_opt.py::FactorGraph.solve_GN_rays / solve_GN_calib (spec §8). Pointmaps
+    Upstream: global_opt.py::FactorGraph.solve_GN_rays / solve_GN_calib (docs/upstream.md §8). Pointmaps
     are ray-constrained first in calibrated mode. Returns a record of the solve (or None when
     the graph has no edge).
     """

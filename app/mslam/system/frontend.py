@@ -1,12 +1,12 @@
-"""Paper §3.3–3.4 (spec §1.2, §1.4, §5) — the frontend: modes, tracking, fusion, keyframes.
+"""Paper §3.3–3.4 (docs/upstream.md §1.2, §1.4, §5) — the frontend: modes, tracking, fusion, keyframes.
 
 ``SlamSystem.process(frame)`` is upstream's main-loop body for one frame, single process:
 
 * **INIT** — ``prior.mono(frame)`` gives the first keyframe (pose = identity); mode → TRACKING.
 * **TRACKING** — ``prior.pair(frame, last keyframe)``, matching (initialised with the previous
-  frame's ``idx_f2k``), the masks of spec §5.1, the IRLS Gauss–Newton on ``T_CkCf``
+  frame's ``idx_f2k``), the masks of docs/upstream.md §5.1, the IRLS Gauss–Newton on ``T_CkCf``
   (constant-position initial guess), fusion of the keyframe's pointmap (``X_kk = T_CkCf · X_kf``,
-  paper Eq. 8), and the new-keyframe test (spec §5.5). Too few matches or a Cholesky failure
+  paper Eq. 8), and the new-keyframe test (docs/upstream.md §5.5). Too few matches or a Cholesky failure
   switch to RELOC. A new keyframe triggers graph construction and the global backend
   **synchronously** (upstream's ``single_thread`` mode).
 * **RELOC** — ``mslam.system.reloc.relocalise`` on the frame; on success mode → TRACKING.
@@ -129,7 +129,7 @@ class SlamSystem:
             self.stats.seconds[stage] += time.perf_counter() - t0
 
     def _constrain(self, X: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-        """Points on the known rays in calibrated mode (spec §6.2), flat (N, 3)."""
+        """Points on the known rays in calibrated mode (docs/upstream.md §6.2), flat (N, 3)."""
         if self.K is None:
             return X
         from mslam_ref.calib import constrain_points_to_ray
@@ -168,7 +168,7 @@ class SlamSystem:
 
     # -- the main-loop body ----------------------------------------------------------------
     def process(self, frame: Frame) -> str:
-        """Process one frame (spec §1.4 step 4-5); returns its status."""
+        """Process one frame (docs/upstream.md §1.4); returns its status."""
         self.stats.frames += 1
         if self.mode == Mode.INIT:
             with self.timer("prior"):

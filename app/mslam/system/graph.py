@@ -1,9 +1,9 @@
-"""Paper §3.4–3.5 (spec §1.3, §7.3–7.4) — keyframes, graph edges, edge acceptance, two-way blocks.
+"""Paper §3.4–3.5 (docs/upstream.md §1.3, §7.3–7.4) — keyframes, graph edges, edge acceptance, two-way blocks.
 
 The keyframe store holds, per keyframe, the input frame, its Sim(3) pose ``T_WC``, its fused
 canonical pointmap (``PointmapState``) and its retrieval features. Unlike upstream's
 ``SharedKeyframes`` (512 slots preallocated on the GPU, the cause of the out-of-memory reports
-of spec §14) it is a Python list that grows one keyframe at a time.
+of docs/upstream.md §14) it is a Python list that grows one keyframe at a time.
 
 An edge (i, j) between two keyframes is made like upstream's ``FactorGraph.add_factors``:
 the prior decodes the pair both ways, ``pair(i, j)`` and ``pair(j, i)``, matching runs on both
@@ -171,7 +171,7 @@ def match_pairs(
     """Decode and match keyframe pairs both ways; returns unfiltered candidate edges.
 
     Upstream: mast3r_utils.py::mast3r_decode_symmetric_batch, mast3r_match_symmetric;
-    global_opt.py::FactorGraph.add_factors (steps 1-4, spec §7.3).
+    global_opt.py::FactorGraph.add_factors (steps 1-4, docs/upstream.md §7.3).
 
     Args:
         store: the keyframes.
@@ -246,7 +246,7 @@ class FactorGraph:
     ) -> bool:
         """Match candidate pairs and store the accepted edges; True if at least one was added.
 
-        Upstream: global_opt.py::FactorGraph.add_factors (spec §7.3 steps 5-7).
+        Upstream: global_opt.py::FactorGraph.add_factors (docs/upstream.md §7.3).
 
         Acceptance: an edge is invalid when ``match_frac < min_match_frac`` and it is not
         consecutive (``i == j - 1``); with ``is_reloc`` (strict) any invalid edge rejects all.
@@ -277,7 +277,7 @@ class FactorGraph:
         return sum(e.kind == kind for e in self.edges)
 
     def two_way_blocks(self) -> SimpleNamespace:
-        """Directed residual blocks of all edges (upstream ``prep_two_way_edges``, spec §7.4).
+        """Directed residual blocks of all edges (upstream ``prep_two_way_edges``, docs/upstream.md §7.4).
 
         Edge (i, j) gives block (i ← j) with ``idx_i2j, valid_match_j, Q_j`` (residuals over
         the pixels of j, reference pixel in i) and block (j ← i) with ``idx_j2i,

@@ -1,4 +1,4 @@
-"""Spec §13 — what a run leaves behind: trajectories, point cloud, summary, plot.
+"""docs/upstream.md §13 — what a run leaves behind: trajectories, point cloud, summary, plot.
 
 Files in the output folder, every one written atomically (temporary file, then rename):
 
@@ -6,7 +6,7 @@ Files in the output folder, every one written atomically (temporary file, then r
   camera-to-world, Sim(3) scale dropped); tracked frames are composed with their keyframe's
   *final* pose. Frames seen while tracking was lost have no pose and are not listed (counted
   in the summary as ``lost_frames``). Upstream writes keyframes only (users asked for all
-  frames, spec §14).
+  frames, docs/upstream.md §14).
 * ``keyframes.txt`` — the keyframes, same format (upstream's ``<seq>.txt``).
 * ``reconstruction.ply`` — per keyframe, world points ``T_WC · X_canon`` (ray-constrained in
   calibrated mode), colours from the keyframe image, pixels with ``C/N > 1.5`` (upstream's
@@ -42,7 +42,7 @@ __all__ = [
     "write_outputs",
 ]
 
-#: Average-confidence threshold of the exported points (upstream viz default, spec §13).
+#: Average-confidence threshold of the exported points (upstream viz default, docs/upstream.md §13).
 C_CONF_THRESHOLD = 1.5
 
 
@@ -111,7 +111,7 @@ def evaluate_run(system: Any, sequence: Any) -> dict[str, Any]:
 
 
 def summary_dict(system: Any, meta: dict[str, Any], ev: dict[str, Any]) -> dict[str, Any]:
-    """The JSON summary (spec §13 plus what users ask for, §14)."""
+    """The JSON summary (docs/upstream.md §13 plus what users ask for, §14)."""
     st = system.stats
     graph = system.graph
     spans = [e.j - e.i for e in graph.edges if e.kind == "retrieval"]

@@ -1,4 +1,4 @@
-"""Paper §3.6 (spec §9) — relocalisation after tracking is lost.
+"""Paper §3.6 (docs/upstream.md §9) — relocalisation after tracking is lost.
 
 While the system is lost, every new frame gets a mono pointmap and is compared against the
 keyframes through the retrieval database (query only, ``retrieval.k`` candidates above

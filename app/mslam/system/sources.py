@@ -1,4 +1,4 @@
-"""Spec §10 — opening a SOURCE for ``mslam run``: sequence, calibration and prior, checked first.
+"""docs/upstream.md §10 — opening a SOURCE for ``mslam run``: sequence, calibration and prior, checked first.
 
 ``open_source`` resolves everything a run needs *before any work starts*, so that a bad path,
 a missing or inconsistent calibration, or a prior that cannot work on the source is one clear

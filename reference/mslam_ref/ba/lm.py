@@ -109,7 +109,8 @@ class LMResult:
         problem: the problem with the optimised parameters.
         initial_cost, final_cost: ``F / 2`` before and after.
         iterations: LM iterations run.
-        history: per iteration ``{"iteration", "cost", "lambda", "trials", "accepted"}``.
+        history: per iteration ``{"iteration", "cost", "lambda", "trials", "accepted", "gain"}``
+            (``lambda`` after the iteration's update; ``gain`` the gain ratio of its last trial).
         profile: seconds per stage, keys ``PROFILE_KEYS``.
         edge_chi2: (O,) ``omega |r|^2`` per edge at the end, without the kernel (0 for dropped
             edges), as cuda-bundle-adjustment's ``chiSquared(e)``.
@@ -292,7 +293,7 @@ def optimize(
             _damping_update(state, rho, cfg)
         history.append(
             {"iteration": it, "cost": 0.5 * state.F, "lambda": state.lam, "trials": trials,
-             "accepted": rho > 0.0}
+             "accepted": rho > 0.0, "gain": rho}
         )  # fmt: skip
         stop = _stop_reason(rho, state, F_prev, cfg)
         if stop:
