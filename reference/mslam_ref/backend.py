@@ -257,10 +257,9 @@ def pose_graph(
 ) -> PoseGraph:
     """Validate and convert the backend's fixed data (shapes, index ranges, finiteness).
 
-    Args:
-        as the attributes of :class:`PoseGraph`; X is constrained to its rays
-        (``calib.constrain_points_to_ray``) when ``K_cam`` is given, as upstream's
-        ``solve_GN_calib`` does.
+    The arguments are the attributes of :class:`PoseGraph`. X is constrained to its rays
+    (``calib.constrain_points_to_ray``) when ``K_cam`` is given, as upstream's
+    ``solve_GN_calib`` does.
 
     Raises:
         ValueError: naming the first argument that is wrong.

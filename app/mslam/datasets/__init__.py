@@ -88,8 +88,8 @@ def load_sequence(
         **synthetic_kwargs: ``n_frames``, ``width``, ``height``, ``seed`` for synthetic sources.
 
     Raises:
-        FileNotFoundError: the source does not exist. ValueError: unknown layout or bad files,
-        naming the path.
+        FileNotFoundError: the source does not exist.
+        ValueError: unknown layout or bad files, naming the path.
     """
     step = int(subsample)
     if step < 1:

@@ -77,8 +77,8 @@ def read_calibration(path: str | Path) -> Calibration:
     Upstream: main.py (``--calib``) and dataloader.py::Intrinsics.from_calib.
 
     Raises:
-        FileNotFoundError: missing file. ValueError: unparsable YAML, a missing key, or bad
-        values, naming the file.
+        FileNotFoundError: missing file.
+        ValueError: unparsable YAML, a missing key, or bad values, naming the file.
     """
     path = Path(path)
     if not path.is_file():

@@ -76,7 +76,8 @@ def load_tum(
     folder name says so, else none (uncalibrated).
 
     Raises:
-        FileNotFoundError / ValueError naming the file.
+        FileNotFoundError: a missing index file, naming it.
+        ValueError: a malformed index file, naming it.
     """
     folder = Path(folder)
     assoc, rgb_txt = folder / "associations.txt", folder / "rgb.txt"
