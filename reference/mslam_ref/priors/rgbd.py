@@ -59,7 +59,11 @@ class RGBDPriorConfig:
 
     Attributes:
         features: "sift" or "orb".
-        n_features: keypoints per image.
+        n_features: keypoints per image (the strongest responses are kept).
+        contrast_threshold: SIFT's DoG contrast threshold. OpenCV's default (0.04) is absolute
+            in intensity and starves low-contrast images (160x120 frames of smooth textures
+            kept 12-140 of the 2000 keypoints); a low threshold lets ``n_features`` rank by
+            response instead, so the detector yields its quota whatever the contrast.
         ratio: Lowe ratio-test threshold.
         detect_min_width: frames narrower than this are upscaled for detection only.
         ransac_px: RANSAC reprojection threshold in frame pixels.
@@ -83,6 +87,7 @@ class RGBDPriorConfig:
 
     features: str = "sift"
     n_features: int = 2000
+    contrast_threshold: float = 0.01
     ratio: float = 0.8
     detect_min_width: int = 480
     ransac_px: float = 1.5
@@ -210,7 +215,9 @@ class RGBDPrior:
         if f > 1:
             grey = cv2.resize(grey, (W * f, H * f), interpolation=cv2.INTER_CUBIC)
         if self.cfg.features == "sift":
-            det = cv2.SIFT_create(nfeatures=self.cfg.n_features)
+            det = cv2.SIFT_create(
+                nfeatures=self.cfg.n_features, contrastThreshold=self.cfg.contrast_threshold
+            )
         else:
             det = cv2.ORB_create(nfeatures=self.cfg.n_features)
         kps, desc = det.detectAndCompute(grey, None)
