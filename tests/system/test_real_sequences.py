@@ -131,3 +131,26 @@ def test_7scenes_redkitchen_ate_below_2cm(shared_data, fast64) -> None:
     assert s["frames_with_pose"] == 150 and s["plausible"]
     assert s["ate_frames"] == 150
     assert s["ate_rmse"] < 0.02
+
+
+def test_7scenes_stamps_are_the_frame_numbers(shared_data, tmp_path) -> None:
+    """A clip starting at frame-000400 keeps the dataset's clock (number / 30 Hz) and its
+    trajectory associates with that clip's ground truth by evo's rules."""
+    from mslam_ref import evaluate
+    from mslam_ref.datasets import load_sequence
+
+    src = shared_data / SEVEN
+    clip = tmp_path / "clip"
+    clip.mkdir()
+    for k in range(5):
+        for kind in ("color.jpg", "depth.png", "pose.txt"):
+            (clip / f"frame-{400 + k:06d}.{kind}").symlink_to(src / f"frame-{k:06d}.{kind}")
+    (clip / "camera-intrinsics.txt").symlink_to(src / "camera-intrinsics.txt")
+    seq = load_sequence(clip)
+    np.testing.assert_allclose(seq.timestamps, (400 + np.arange(5)) / 30.0, atol=1e-12)
+    gt_ts = (400 + np.arange(5)) / 30.0  # how a 7-Scenes ground-truth file of the clip is stamped
+    est_i, gt_i = evaluate.associate(seq.timestamps, gt_ts)
+    assert len(est_i) == 5 and np.array_equal(est_i, gt_i)
+    full = load_sequence(src)
+    gt_file_ts, _ = read_tum(src / "groundtruth.txt")
+    assert len(evaluate.associate(full.timestamps, gt_file_ts)[0]) == 150
