@@ -7,13 +7,16 @@ Files in the output folder, every one written atomically (temporary file, then r
   *final* pose. Frames seen while tracking was lost have no pose and are not listed (counted
   in the summary as ``lost_frames``). Upstream writes keyframes only (users asked for all
   frames, spec §14).
-* ``keyframes.txt`` — the keyframes, same format (upstream's ``<seq>.txt``).
+* ``keyframes.txt`` — the keyframes, same format (upstream's ``<seq>.txt``); their images in
+  ``keyframes/<timestamp>.png`` (upstream's ``keyframes/`` folder), at the working resolution.
+* ``baseline_odometry.txt`` — with ``--baseline``: OpenCV's RGB-D odometry, TUM format.
 * ``reconstruction.ply`` — per keyframe, world points ``T_WC · X_canon`` (ray-constrained in
   calibrated mode), colours from the keyframe image, pixels with ``C/N > 1.5`` (upstream's
   ``save_reconstruction``); binary little-endian, x y z float32, red green blue uint8.
 * ``summary.json`` — counts, timings, kernels, prior, ATE (Sim(3) Umeyama, evo's association)
   when ground truth exists, path length.
 * ``trajectory.png`` — estimate (aligned) and ground truth from the top, and the error over time.
+* ``summary.json`` also says how far the run can be trusted (``mslam_ref.system.health``).
 
 Public names, in reading order:
     C_CONF_THRESHOLD, reconstruction_points, evaluate_run, summary_dict, plot_trajectory,
@@ -305,6 +308,10 @@ def write_outputs(
     mio.write_tum(out_dir / "keyframes.txt", kts, kT.reshape(-1, 8))
     if base is not None:
         mio.write_tum(out_dir / "baseline_odometry.txt", base.timestamps, base.T_WC.reshape(-1, 8))
+    for t, kf in zip(kts, system.keyframes):  # upstream's keyframes/ folder, named by stamp
+        ok, enc = cv2.imencode(".png", np.ascontiguousarray(kf.frame.rgb[..., ::-1]))
+        if ok:
+            write_atomic(out_dir / "keyframes" / f"{t:.6f}.png", enc.tobytes())
     mio.write_ply(out_dir / "reconstruction.ply", xyz, rgb)
     write_atomic(out_dir / "trajectory.png", png)
     write_atomic(out_dir / "summary.json", text)
