@@ -154,3 +154,12 @@ def test_7scenes_stamps_are_the_frame_numbers(shared_data, tmp_path) -> None:
     full = load_sequence(src)
     gt_file_ts, _ = read_tum(src / "groundtruth.txt")
     assert len(evaluate.associate(full.timestamps, gt_file_ts)[0]) == 150
+
+
+def test_rgbd_prior_at_full_resolution_is_refused_early(tmp_path, capsys) -> None:
+    """--config base keeps 640x480; the RGB-D prior would crawl, so it is an early error."""
+    seq = _synth(tmp_path, "loop", 3, 400, 300)
+    out = tmp_path / "out"
+    assert main(["run", str(seq), "--out", str(out), "--config", "base"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "dataset.long_side=160" in err[0] and not out.exists()
