@@ -94,3 +94,17 @@ def test_7scenes_redkitchen_table(shared_data, tmp_path) -> None:
     est_ts, _ = read_tum(out / "redkitchen" / "trajectory.txt")
     gt_ts, _ = read_tum(shared_data / SEVEN / "groundtruth.txt")
     assert len(evaluate.associate(est_ts, gt_ts)[0]) == 150
+
+
+def test_eth3d_folder_reads_its_calibration_txt(tmp_path) -> None:
+    """ETH3D SLAM folders are TUM-like with ``calibration.txt`` = ``fx fy cx cy``."""
+    from mslam_ref.datasets import load_sequence
+
+    seq_dir = tmp_path / "eth3d" / "table_3"
+    args = ["synth", "forward", "--out", str(seq_dir), "--frames", "3"]
+    assert main([*args, "--width", "64", "--height", "48"]) == 0
+    (seq_dir / "calib.yaml").unlink()
+    (seq_dir / "calibration.txt").write_text("50.5 51.0 31.5 23.5\n")
+    seq = load_sequence(seq_dir)
+    assert seq.K[0, 0] == 50.5 and seq.K[1, 2] == 23.5
+    assert find_sequences(tmp_path / "eth3d", "eth3d") == [seq_dir]
