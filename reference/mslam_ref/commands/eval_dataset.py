@@ -59,24 +59,34 @@ DATASETS = {
 
 
 def find_sequences(root: str | Path, dataset: str) -> list[Path]:
-    """Sequence folders under ``root`` (``root`` itself included), sorted."""
+    """Sequence folders under ``root`` (``root`` itself included, symlinks followed), sorted."""
+    import fnmatch
+    import os
+
     root = Path(root)
     if dataset not in DATASETS:
         raise ValueError(f"--dataset: unknown dataset {dataset!r}; choose one of {list(DATASETS)}")
-    if dataset == "euroc":
-        hits = {p.parents[2] if p.parents[1].name == "mav0" else p.parents[1]
-                for p in root.rglob("cam0/data.csv")}  # fmt: skip
-    elif dataset == "7scenes":
-        hits = {p.parent for p in root.rglob("frame-*.color.*")}
-    else:
-        hits = {p.parent for pat in ("rgb.txt", "associations.txt") for p in root.rglob(pat)}
+    hits = set()
+    for d, _dirs, files in os.walk(root, followlinks=True):
+        here = Path(d)
+        if dataset == "euroc":
+            if here.name == "cam0" and "data.csv" in files:
+                seq = here.parent
+                hits.add(seq.parent if seq.name == "mav0" else seq)
+        elif dataset == "7scenes":
+            if any(fnmatch.fnmatch(f, "frame-*.color.*") for f in files):
+                hits.add(here)
+        elif "rgb.txt" in files or "associations.txt" in files:
+            hits.add(here)
     return sorted(hits)
 
 
 def sequence_name(root: Path, seq: Path) -> str:
     """Output folder name of a sequence: its path below ROOT with ``/`` → ``_``."""
-    rel = seq.resolve().relative_to(root.resolve())
-    return "_".join(rel.parts) if rel.parts else seq.resolve().name
+    import os
+
+    rel = Path(os.path.relpath(seq, root))
+    return "_".join(rel.parts) if rel.parts and rel.parts != (".",) else seq.resolve().name
 
 
 def run_sequence(path: Path, cfg: Any, kernels: Any, out: Path, max_frames: int | None) -> dict:
