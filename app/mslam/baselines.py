@@ -112,7 +112,8 @@ def rgbd_odometry_ate(sequence: Any) -> dict[str, Any]:
     Returns:
         JSON-ready dict: ``method``, ``frames``, ``failures``, ``seconds``, and ``ate_rmse``,
         ``ate`` (evaluate.AteResult.to_dict) when ground truth exists; ``error`` if OpenCV
-        failed outright (the baseline is optional).
+        failed outright (the baseline is optional); ``_result`` holds the
+        :class:`OdometryResult` (underscore keys are not written to summary.json).
     """
     from mslam import evaluate
 
@@ -123,6 +124,7 @@ def rgbd_odometry_ate(sequence: Any) -> dict[str, Any]:
         out["error"] = str(exc).strip().splitlines()[-1]
         return out
     out.update(frames=len(res.timestamps), failures=res.failures, seconds=res.seconds)
+    out["_result"] = res  # the trajectory itself (baseline_odometry.txt, the plot); not JSON
     if sequence.T_WC is not None and len(res.timestamps) >= 3:
         a = evaluate.ate(res.timestamps, res.T_WC, sequence.timestamps, sequence.T_WC, "sim3")
         out["ate"] = a.to_dict()

@@ -21,7 +21,7 @@ from collections.abc import Sequence
 from mslam import __version__
 
 #: Sub-commands in the order ``mslam --help`` lists them.
-COMMANDS = ("run", "eval", "synth", "ba")
+COMMANDS = ("run", "eval", "eval_dataset", "synth", "ba")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -39,7 +39,7 @@ def _run(capsys, argv):
 
 def test_eval_prints_json(capsys, traj_pair) -> None:
     est, gt = traj_pair
-    code, out, err = _run(capsys, ["eval", str(est), str(gt)])
+    code, out, err = _run(capsys, ["eval", str(gt), str(est)])
     assert code == 0, err
     res = json.loads(out)
     assert res["matched"] == 25 and res["n_est"] == 25 and res["align"] == "sim3"
@@ -51,17 +51,17 @@ def test_eval_prints_json(capsys, traj_pair) -> None:
 
 def test_eval_align_and_max_diff_options(capsys, traj_pair) -> None:
     est, gt = traj_pair
-    _, out, _ = _run(capsys, ["eval", str(est), str(gt), "--align", "se3"])
+    _, out, _ = _run(capsys, ["eval", str(gt), str(est), "--align", "se3"])
     se3 = json.loads(out)
     assert se3["scale"] == 1.0 and se3["ate_rmse"] > 0.1
-    code, _, err = _run(capsys, ["eval", str(est), str(gt), "--max-diff", "0.001"])
+    code, _, err = _run(capsys, ["eval", str(gt), str(est), "--max-diff", "0.001"])
     assert code == 2 and "no estimate stamp" in err and len(err.strip().splitlines()) == 1
 
 
 def test_eval_missing_file_exit_code_2(capsys, traj_pair, tmp_path) -> None:
     est, _ = traj_pair
     missing = tmp_path / "nope.txt"
-    code, out, err = _run(capsys, ["eval", str(est), str(missing)])
+    code, out, err = _run(capsys, ["eval", str(missing), str(est)])
     assert code == 2 and out == ""
     assert str(missing) in err and len(err.strip().splitlines()) == 1
 
@@ -70,7 +70,7 @@ def test_eval_malformed_file_names_file_and_line(capsys, traj_pair, tmp_path) ->
     _, gt = traj_pair
     bad = tmp_path / "bad.txt"
     bad.write_text("0 0 0 0 0 0 0 1\n1 0 0 zero 0 0 0 1\n")
-    code, out, err = _run(capsys, ["eval", str(bad), str(gt)])
+    code, out, err = _run(capsys, ["eval", str(gt), str(bad)])
     assert code == 2 and out == ""
     assert f"{bad}:2:" in err
 
@@ -80,7 +80,7 @@ def test_eval_kitti_needs_kitti(capsys, traj_pair, tmp_path) -> None:
     M = sim3.to_matrix(np.tile(sim3.identity(), (3, 1)))
     kitti = tmp_path / "k.txt"
     kitti.write_text("".join(" ".join(map(str, m[:3].ravel())) + "\n" for m in M))
-    code, _, err = _run(capsys, ["eval", str(kitti), str(gt)])
+    code, _, err = _run(capsys, ["eval", str(gt), str(kitti)])
     assert code == 2 and "KITTI" in err
 
 
@@ -94,8 +94,24 @@ def test_eval_kitti_needs_kitti(capsys, traj_pair, tmp_path) -> None:
 )
 def test_eval_reproduces_evo_on_shared_data(capsys, shared_data, est, gt, align, rmse, matched):
     d = shared_data / "traj"
-    code, out, err = _run(capsys, ["eval", str(d / est), str(d / gt), "--align", align])
+    code, out, err = _run(capsys, ["eval", str(d / gt), str(d / est), "--align", align])
     assert code == 0, err
     res = json.loads(out)
     assert res["matched"] == matched
     assert res["ate_rmse"] == pytest.approx(rmse, abs=1e-6)
+
+
+def test_eval_takes_the_reference_first_as_evo(capsys, traj_pair) -> None:
+    """evo_ape REF EST: swapping the files changes the result (the estimate drives the
+    association and its scale is fitted), so the order is part of the interface."""
+    est, gt = traj_pair
+    _, out, _ = _run(capsys, ["eval", str(gt), str(est)])
+    _, out_swapped, _ = _run(capsys, ["eval", str(est), str(gt)])
+    res, swapped = json.loads(out), json.loads(out_swapped)
+    assert res["n_est"] == 25 and swapped["n_est"] == 50
+    assert res["scale"] == pytest.approx(0.5, rel=1e-2)
+    assert swapped["scale"] == pytest.approx(2.0, rel=1e-2)
+    with pytest.raises(SystemExit):
+        main(["eval", "--help"])
+    usage = capsys.readouterr().out
+    assert "REFERENCE ESTIMATE" in usage and "FIRST" in usage

@@ -1,4 +1,6 @@
-"""``mslam eval ESTIMATE GROUNDTRUTH`` — ATE of a trajectory file against ground truth (docs/upstream.md §12).
+"""``mslam eval REFERENCE ESTIMATE`` — ATE of a trajectory file against ground truth (docs/upstream.md §12).
+
+The argument order is evo's (``evo_ape tum REFERENCE ESTIMATE``): ground truth first.
 
 Both files may be TUM (``timestamp tx ty tz qx qy qz qw``), KITTI (12 numbers per line) or an
 EuRoC ground-truth csv; the format is detected from the content (``mslam.formats.read_trajectory``).
@@ -7,7 +9,7 @@ KITTI files have no stamps, so they are associated by index and need equal lengt
 ``kitti`` mode). Prints one JSON object: ``ate_rmse``, ``ate_mean``, ``ate_median``, ``ate_max``,
 ``scale``, ``matched``, ``n_est``, ``align``, ``max_diff``.
 
-Equivalent evo command: ``evo_ape tum GROUNDTRUTH ESTIMATE -as`` (``--align sim3``, the paper's
+Equivalent evo command: ``evo_ape tum REFERENCE ESTIMATE -as`` (``--align sim3``, the paper's
 protocol), ``-a`` (``se3``) or no flag (``none``).
 """
 
@@ -28,10 +30,18 @@ def register(subparsers: Any) -> None:
         "eval",
         help="ATE RMSE of a trajectory against ground truth (evo-compatible)",
         description="Absolute trajectory error (translation part) after Umeyama alignment, "
-        "with evo's timestamp association. Prints JSON.",
+        "with evo's timestamp association. Prints JSON. Argument order as evo's "
+        "'evo_ape tum REFERENCE ESTIMATE': the ground truth FIRST, then the estimate.",
     )
-    p.add_argument("estimate", type=Path, help="estimated trajectory (TUM, KITTI or EuRoC csv)")
-    p.add_argument("groundtruth", type=Path, help="ground-truth trajectory (same formats)")
+    p.add_argument(
+        "groundtruth",
+        type=Path,
+        metavar="REFERENCE",
+        help="ground-truth trajectory, first as in evo (TUM, KITTI or EuRoC csv)",
+    )
+    p.add_argument(
+        "estimate", type=Path, metavar="ESTIMATE", help="estimated trajectory (same formats)"
+    )
     p.add_argument(
         "--align",
         choices=("sim3", "se3", "none"),
@@ -64,8 +74,8 @@ def run(args: argparse.Namespace) -> int:
 
     if not (args.max_diff >= 0):
         raise UserError(f"--max-diff: must be >= 0, got {args.max_diff}")
-    est_stamps, est_poses = _read(args.estimate)
     gt_stamps, gt_poses = _read(args.groundtruth)
+    est_stamps, est_poses = _read(args.estimate)
     if (est_stamps is None) != (gt_stamps is None):
         kitti = args.estimate if est_stamps is None else args.groundtruth
         raise UserError(
@@ -75,7 +85,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         res = ate(est_stamps, est_poses, gt_stamps, gt_poses, args.align, args.max_diff)
     except ValueError as exc:
-        raise UserError(f"{args.estimate} vs {args.groundtruth}: {exc}") from None
+        raise UserError(f"{args.groundtruth} (reference) vs {args.estimate}: {exc}") from None
     out = res.to_dict()
     out["align"] = args.align
     out["max_diff"] = args.max_diff if est_stamps is not None else None

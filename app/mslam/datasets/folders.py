@@ -3,8 +3,9 @@
 * 7-Scenes: ``frame-XXXXXX.color.{png,jpg}`` (natsorted), ``frame-XXXXXX.depth.png``
   (millimetres, depth scale 1000), ``frame-XXXXXX.pose.txt`` (4x4 camera-to-world ground truth).
   Intrinsics from ``calib``, else ``calib.yaml``, else ``camera-intrinsics.txt``, else upstream's
-  fx = fy = 585, cx = 320, cy = 240. Timestamps ``index / 30`` (upstream uses the bare index;
-  /30 matches the TUM-style index files of the shared data).
+  fx = fy = 585, cx = 320, cy = 240. Timestamps: the frame number parsed from the file name
+  over the nominal 30 Hz (``frame-000400`` → 13.3333 s), so a clip keeps the dataset's own clock
+  and associates with its own ground truth (upstream uses the position in the folder).
 * EuRoC: ``mav0/cam0/data.csv`` (``timestamp_ns, filename``) and ``mav0/cam0/sensor.yaml``
   (``intrinsics: [fu, fv, cu, cv]``, ``distortion_coefficients``, ``resolution``); grey images
   become 3-channel; images are always undistorted (upstream ``always_undistort``); ground truth
@@ -76,7 +77,13 @@ def load_7scenes(folder, calib=None, size=None) -> FileSequence:
         from mslam.datasets.readers import read_rgb
 
         cal = _seven_scenes_calib(folder, read_rgb(rgb[0]).shape[:2])
-    stamps = np.arange(len(rgb)) / 30.0
+    # The dataset's own clock: the frame number of the file name at the nominal 30 Hz, so a clip
+    # starting at frame-000400 keeps stamps 13.333... and associates with its own ground truth.
+    try:
+        numbers = [int(s.split("-")[-1]) for s in stem]
+    except ValueError:
+        raise ValueError(f"{folder}: expected frame-<number>.color.* file names") from None
+    stamps = np.asarray(numbers, np.float64) / 30.0
     return FileSequence(
         folder.name, rgb, stamps, depth if has_depth else None, T_WC, cal, 1000.0, size
     )

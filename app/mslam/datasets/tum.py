@@ -112,11 +112,28 @@ def load_tum(
     cal = apply_calibration(calib)
     if cal is None and (folder / "calib.yaml").is_file():
         cal = apply_calibration(folder / "calib.yaml")
+    if cal is None and (folder / "calibration.txt").is_file():
+        cal = _eth3d_calibration(folder / "calibration.txt", rgb_paths[0])
     if cal is None:
         for key, vals in TUM_CALIB.items():
             if key in folder.name:
                 cal = Calibration(640, 480, *vals[:4], tuple(vals[4:]), 5000.0)
     return FileSequence(folder.name, rgb_paths, stamps, depth_paths, T_WC, cal, 5000.0, size)
+
+
+def _eth3d_calibration(path: Path, first_rgb: Path) -> Calibration | None:
+    """ETH3D SLAM's ``calibration.txt`` (one line ``fx fy cx cy``); None for other contents."""
+    from mslam.datasets.readers import read_rgb
+
+    rows = [r for r in path.read_text().splitlines() if r.strip() and not r.startswith("#")]
+    try:
+        vals = [float(x) for x in rows[0].split()] if len(rows) == 1 else []
+    except ValueError:
+        return None
+    if len(vals) != 4:
+        return None
+    H, W = read_rgb(first_rgb).shape[:2]
+    return Calibration(W, H, *vals, (), 5000.0)
 
 
 def _tum_line(t: float, T: FloatArray) -> str:

@@ -11,7 +11,8 @@ the two images only (never from ground truth):
 3. ``cv2.solvePnPRansac`` (EPnP, then the iterative solver if EPnP's answer fails the sanity
    check: finite, ``|t| <= max_translation``, inliers in front of camera i and reprojecting
    within ``ransac_px`` after ``cv2.solvePnPRefineLM``) give ``T_ij`` (``X_i = R X_j + t``);
-4. point-to-plane ICP of j's depth points onto i's depth map refines it (``icp_*``).
+4. point-to-plane ICP of j's depth points onto i's depth map refines it (``icp_*``), kept only
+   while it still explains the feature matches (ICP alone can slide along a plane).
 
 ``X_ji = T_ij · X_jj``. Confidences: valid depth ``C = 1 + conf_max · exp(-σ(z)/conf_sigma)``
 with the Kinect noise model ``σ(z) = 0.0012 + 0.0019 (z - 0.4)²`` (Nguyen et al. 2012); pixels
@@ -59,7 +60,11 @@ class RGBDPriorConfig:
 
     Attributes:
         features: "sift" or "orb".
-        n_features: keypoints per image.
+        n_features: keypoints per image (the strongest responses are kept).
+        contrast_threshold: SIFT's DoG contrast threshold. OpenCV's default (0.04) is absolute
+            in intensity and starves low-contrast images (160x120 frames of smooth textures
+            kept 12-140 of the 2000 keypoints); a low threshold lets ``n_features`` rank by
+            response instead, so the detector yields its quota whatever the contrast.
         ratio: Lowe ratio-test threshold.
         detect_min_width: frames narrower than this are upscaled for detection only.
         ransac_px: RANSAC reprojection threshold in frame pixels.
@@ -73,6 +78,8 @@ class RGBDPriorConfig:
         icp_min_frac: the refined pose is kept only if at least this share of j's valid pixels
             is associated at the end.
         icp_max_change: ... and if it moves the PnP pose by less than this (m, and rad).
+        icp_min_agree: ... and if it still explains this share of the matches the PnP pose
+            explains (ICP can slide along a plane; ``_icp_agrees``).
         fill_depth: depth (m) used when a frame has no valid depth at all.
         conf_max, conf_sigma: ``C = 1 + conf_max exp(-σ(z) / conf_sigma)`` on valid depth.
         consistency_tol: relative depth disagreement that marks a pixel of j inconsistent.
@@ -83,6 +90,7 @@ class RGBDPriorConfig:
 
     features: str = "sift"
     n_features: int = 2000
+    contrast_threshold: float = 0.01
     ratio: float = 0.8
     detect_min_width: int = 480
     ransac_px: float = 1.5
@@ -94,6 +102,7 @@ class RGBDPriorConfig:
     icp_dist_final: float = 0.02
     icp_min_frac: float = 0.25
     icp_max_change: float = 0.15
+    icp_min_agree: float = 0.5
     fill_depth: float = 3.0
     conf_max: float = 20.0
     conf_sigma: float = 0.05
@@ -210,7 +219,9 @@ class RGBDPrior:
         if f > 1:
             grey = cv2.resize(grey, (W * f, H * f), interpolation=cv2.INTER_CUBIC)
         if self.cfg.features == "sift":
-            det = cv2.SIFT_create(nfeatures=self.cfg.n_features)
+            det = cv2.SIFT_create(
+                nfeatures=self.cfg.n_features, contrastThreshold=self.cfg.contrast_threshold
+            )
         else:
             det = cv2.ORB_create(nfeatures=self.cfg.n_features)
         kps, desc = det.detectAndCompute(grey, None)
@@ -271,7 +282,8 @@ class RGBDPrior:
         for flags in (cv2.SOLVEPNP_EPNP, cv2.SOLVEPNP_ITERATIVE):
             T_ij, n = self._pnp(obj, img, Ki, flags)
             if n >= cfg.min_inliers:
-                return self._refine_icp(frame_i, frame_j, T_ij), n
+                T_icp = self._refine_icp(frame_i, frame_j, T_ij)
+                return self._icp_agrees(T_icp, T_ij, obj, img, Ki), n
         return sim3.identity(), n
 
     def _refine_icp(self, frame_i: Frame, frame_j: Frame, T_ij: FloatArray) -> FloatArray:
@@ -338,6 +350,25 @@ class RGBDPrior:
         ):
             return T_ij
         return np.concatenate([t, so3.from_matrix(R), [1.0]])
+
+    def _icp_agrees(self, T_icp, T_pnp, obj, img, K) -> FloatArray:
+        """``T_icp`` if it still explains the feature matches, else ``T_pnp``.
+
+        Point-to-plane ICP can slide along a dominant plane (a wall, the floor) where the depth
+        maps alone do not constrain the motion: on the synthetic loop it moved a 3-frame pose
+        by 8 cm while every PnP inlier stopped reprojecting. The refined pose is kept only if
+        at least ``icp_min_agree`` of the matches the PnP pose explains (within ``2 ransac_px``,
+        which tolerates RGB-to-depth misregistration) are still explained.
+        """
+
+        def explained(T: FloatArray) -> int:
+            X = sim3.act(T, obj)
+            z = np.where(X[:, 2] > 1e-6, X[:, 2], np.nan)
+            uv = X[:, :2] / z[:, None] * K[[0, 1], [0, 1]] + K[:2, 2]
+            return int(np.sum(np.linalg.norm(uv - img, axis=1) <= 2 * self.cfg.ransac_px))
+
+        n_pnp = explained(T_pnp)
+        return T_icp if explained(T_icp) >= self.cfg.icp_min_agree * n_pnp else T_pnp
 
     def _pnp(self, obj: FloatArray, img: FloatArray, K: FloatArray, flags: int):
         """RANSAC PnP with ``flags`` + LM refinement, then a sanity check of the result.

@@ -7,13 +7,16 @@ Files in the output folder, every one written atomically (temporary file, then r
   *final* pose. Frames seen while tracking was lost have no pose and are not listed (counted
   in the summary as ``lost_frames``). Upstream writes keyframes only (users asked for all
   frames, docs/upstream.md §14).
-* ``keyframes.txt`` — the keyframes, same format (upstream's ``<seq>.txt``).
+* ``keyframes.txt`` — the keyframes, same format (upstream's ``<seq>.txt``); their images in
+  ``keyframes/<timestamp>.png`` (upstream's ``keyframes/`` folder), at the working resolution.
+* ``baseline_odometry.txt`` — with ``--baseline``: OpenCV's RGB-D odometry, TUM format.
 * ``reconstruction.ply`` — per keyframe, world points ``T_WC · X_canon`` (ray-constrained in
   calibrated mode), colours from the keyframe image, pixels with ``C/N > 1.5`` (upstream's
   ``save_reconstruction``); binary little-endian, x y z float32, red green blue uint8.
 * ``summary.json`` — counts, timings, kernels, prior, ATE (Sim(3) Umeyama, evo's association)
   when ground truth exists, path length.
 * ``trajectory.png`` — estimate (aligned) and ground truth from the top, and the error over time.
+* ``summary.json`` also says how far the run can be trusted (``mslam.system.health``).
 
 Public names, in reading order:
     C_CONF_THRESHOLD, reconstruction_points, evaluate_run, summary_dict, plot_trajectory,
@@ -107,6 +110,7 @@ def evaluate_run(system: Any, sequence: Any) -> dict[str, Any]:
         out["ate_keyframes"] = evaluate.ate(kts, kT, gt_ts, gt, align="sim3").to_dict()
     out["_ate_result"] = res
     out["_gt"] = (gt_ts, gt[:, :3])
+    out["_gt_T"] = gt
     return out
 
 
@@ -142,64 +146,145 @@ def summary_dict(system: Any, meta: dict[str, Any], ev: dict[str, Any]) -> dict[
         "path_length": ev.get("path_length"),
         "path_length_est": ev.get("path_length_est"),
     }
+    from mslam.system.health import health_report
+
+    out.update(
+        health_report(system.poses, frames, out["frames_with_pose"], out["prior"], ev.get("ate"))
+    )
     if "ate" in ev:
         out["ate"] = ev["ate"]
         out["ate_rmse"] = ev["ate"]["ate_rmse"]
+        out["ate_frames"] = ev["ate"]["matched"]
         out["ate_percent_of_path"] = ev["ate_percent_of_path"]
         if "ate_keyframes" in ev:
             out["ate_keyframes"] = ev["ate_keyframes"]
     for key in ("baseline", "config"):
         if key in meta:
-            out[key] = meta[key]
+            out[key] = {k: v for k, v in meta[key].items() if not k.startswith("_")}
     return out
 
 
-def plot_trajectory(system: Any, ev: dict[str, Any], title: str = "") -> bytes:
-    """PNG bytes: top view (estimate aligned to ground truth) and the error over time."""
+def plot_trajectory(
+    system: Any, ev: dict[str, Any], title: str = "", baseline: Any = None
+) -> bytes:
+    """PNG bytes: top view and the position error over time, both panels labelled.
+
+    Top view (the plane of the two largest principal directions of the ground truth, else of
+    the estimate): ground truth, the Sim(3)-aligned estimate, keyframes, loop-closure edges
+    (retrieval and relocalisation edges between keyframes), start and end markers, the
+    ground truth of frames seen while lost, and the ``--baseline`` odometry (aligned the same
+    way) when it ran. Error panel: per-frame error with lost spans shaded.
+    """
     import matplotlib
 
     matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt
 
+    from mslam.system.health import lost_spans
+
     _, ts, T = system.frame_poses()
     res = ev.get("_ate_result")
-    fig, axes = plt.subplots(1, 2 if res is not None else 1, figsize=(11 if res else 6, 5))
+    fig, axes = plt.subplots(1, 2 if res is not None else 1, figsize=(12 if res else 6, 5.2))
     axes = np.atleast_1d(axes)
     ax = axes[0]
+    spans = lost_spans(system.poses)
     if res is not None:
-        _gt_ts, gt_P = ev["_gt"]
-        est_P = res.aligned_positions
-        # Top view: the plane of the two largest principal directions of the ground truth.
+        gt_ts, gt_P = ev["_gt"]
         c = gt_P.mean(0)
-        _, _, Vt = np.linalg.svd(gt_P - c, full_matrices=True)
-        B = Vt[:2].T
-        g2, e2 = (gt_P - c) @ B, (est_P - c) @ B
-        ax.plot(g2[:, 0], g2[:, 1], "-", color="0.5", lw=2, label="ground truth")
-        ax.plot(e2[:, 0], e2[:, 1], "-", color="C3", lw=1, label="estimate (Sim(3)-aligned)")
-        kf_ts = {float(kf.frame.timestamp) for kf in system.keyframes}
-        is_kf = np.array([float(t) in kf_ts for t in ts[res.est_index]])
-        ax.plot(e2[is_kf, 0], e2[is_kf, 1], "o", ms=3, color="C0", label="keyframes")
+        B = np.linalg.svd(gt_P - c, full_matrices=True)[2][:2].T
+        top = lambda P: (np.asarray(P) - c) @ B
+        align = lambda P: res.scale * np.asarray(P) @ res.rotation.T + res.translation
+        ax.plot(*top(gt_P).T, "-", color="0.6", lw=2, label="ground truth")
+        est2 = top(res.aligned_positions)
+        _plot_lost_gt(ax, spans, system.poses, gt_ts, top(gt_P))
+        if baseline is not None and len(baseline.T_WC) >= 3:
+            from mslam import evaluate
+
+            b = evaluate.ate(baseline.timestamps, baseline.T_WC, gt_ts, ev["_gt_T"], "sim3")
+            ax.plot(*top(b.aligned_positions).T, "--", color="C2", lw=1, label="RGB-D odometry")
+        ax.plot(*est2.T, "-", color="C3", lw=1, label="estimate (Sim(3)-aligned)")
+        _plot_keyframes(ax, system, lambda P: top(align(P)))
+        _plot_start_end(ax, est2)
         ax2 = axes[1]
-        ax2.plot(ts[res.est_index], res.errors * 100.0, color="C3")
+        t_err, err = ts[res.est_index], res.errors * 100.0
+        gap = np.flatnonzero(np.diff(t_err) > 1.5 * np.median(np.diff(t_err))) + 1
+        t_err, err = np.insert(t_err, gap, np.nan), np.insert(err, gap, np.nan)
+        ax2.plot(t_err, err, ".-", ms=2, color="C3", label="position error")
+        _shade_lost(ax2, spans, system.poses, gt_ts)
         ax2.set_xlabel("time [s]")
         ax2.set_ylabel("position error [cm]")
-        ax2.set_title(f"ATE RMSE {res.rmse * 100:.2f} cm (scale {res.scale:.3f})")
+        ax2.set_title(
+            f"ATE RMSE {res.rmse * 100:.2f} cm over {res.matched} of {system.stats.frames} "
+            f"frames (scale {res.scale:.3f})"
+        )
+        ax2.legend(loc="best", fontsize=8)
         ax2.grid(alpha=0.3)
     elif len(T):
         P = T[:, :3]
         c = P.mean(0)
-        _, _, Vt = np.linalg.svd(P - c, full_matrices=True)
-        p2 = (P - c) @ Vt[:2].T
-        ax.plot(p2[:, 0], p2[:, 1], ".-", color="C3", label="estimate")
+        B = np.linalg.svd(P - c, full_matrices=True)[2][:2].T
+        p2 = (P - c) @ B
+        ax.plot(*p2.T, ".-", color="C3", ms=2, label="estimate (no ground truth)")
+        _plot_keyframes(ax, system, lambda Q: (np.asarray(Q) - c) @ B)
+        _plot_start_end(ax, p2)
+    ax.set_xlabel("first principal direction [m]")
+    ax.set_ylabel("second principal direction [m]")
     ax.set_aspect("equal", adjustable="datalim")
-    ax.set_title(title or "trajectory, top view")
-    ax.legend(loc="best", fontsize=8)
+    ax.set_title(f"{title or 'trajectory'}: top view")
+    ax.legend(loc="best", fontsize=7)
     ax.grid(alpha=0.3)
     fig.tight_layout()
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=100)
     plt.close(fig)
     return buf.getvalue()
+
+
+def _plot_keyframes(ax: Any, system: Any, to2d: Any) -> None:
+    """Keyframe dots and one line per loop-closure (retrieval / reloc) edge."""
+    if len(system.keyframes) == 0:
+        return
+    K2 = to2d(system.keyframes.poses()[:, :3])
+    ax.plot(*K2.T, "o", ms=3, color="C0", label="keyframes")
+    first = True
+    for e in system.graph.edges:
+        if e.kind in ("retrieval", "reloc") and max(e.i, e.j) < len(K2):
+            label = "loop-closure edges" if first else None
+            ax.plot(*K2[[e.i, e.j]].T, "-", color="C1", lw=0.8, alpha=0.8, label=label)
+            first = False
+
+
+def _plot_start_end(ax: Any, P2: np.ndarray) -> None:
+    if len(P2):
+        ax.plot(*P2[0], "^", ms=9, color="green", label="start")
+        ax.plot(*P2[-1], "s", ms=8, color="black", label="end")
+
+
+def _gt_rows(spans: list[list[int]], poses: list[Any], gt_ts: np.ndarray) -> list[np.ndarray]:
+    """Ground-truth row indices of each lost span (nearest stamp)."""
+    stamp = {int(p.index): float(p.timestamp) for p in poses}
+    out = []
+    for a, b in spans:
+        t0, t1 = stamp.get(a), stamp.get(b)
+        if t0 is not None and t1 is not None and len(gt_ts):
+            out.append(np.flatnonzero((gt_ts >= t0 - 1e-6) & (gt_ts <= t1 + 1e-6)))
+    return out
+
+
+def _plot_lost_gt(ax: Any, spans: list, poses: list, gt_ts: np.ndarray, gt2: np.ndarray) -> None:
+    first = True
+    for rows in _gt_rows(spans, poses, gt_ts):
+        if len(rows):
+            label = "lost (ground truth shown)" if first else None
+            ax.plot(*gt2[rows].T, "x", ms=4, color="C4", label=label)
+            first = False
+
+
+def _shade_lost(ax: Any, spans: list, poses: list, gt_ts: np.ndarray) -> None:
+    stamp = {int(p.index): float(p.timestamp) for p in poses}
+    for k, (a, b) in enumerate(spans):
+        label = "lost" if k == 0 else None
+        ax.axvspan(stamp[a], stamp[b], color="C4", alpha=0.2, label=label)
 
 
 def write_outputs(
@@ -214,11 +299,18 @@ def write_outputs(
     xyz, rgb = reconstruction_points(system)
     ev = evaluate_run(system, sequence)
     summary = summary_dict(system, meta, ev)
-    png = plot_trajectory(system, ev, title=str(meta.get("source", "")))
+    base = (meta.get("baseline") or {}).get("_result")
+    png = plot_trajectory(system, ev, title=str(meta.get("source", "")), baseline=base)
     text = json.dumps(summary, indent=2, default=_json_default) + "\n"
     out_dir.mkdir(parents=True, exist_ok=True)
     mio.write_tum(out_dir / "trajectory.txt", ts, T.reshape(-1, 8))
     mio.write_tum(out_dir / "keyframes.txt", kts, kT.reshape(-1, 8))
+    if base is not None:
+        mio.write_tum(out_dir / "baseline_odometry.txt", base.timestamps, base.T_WC.reshape(-1, 8))
+    for t, kf in zip(kts, system.keyframes):  # upstream's keyframes/ folder, named by stamp
+        ok, enc = cv2.imencode(".png", np.ascontiguousarray(kf.frame.rgb[..., ::-1]))
+        if ok:
+            write_atomic(out_dir / "keyframes" / f"{t:.6f}.png", enc.tobytes())
     mio.write_ply(out_dir / "reconstruction.ply", xyz, rgb)
     write_atomic(out_dir / "trajectory.png", png)
     write_atomic(out_dir / "summary.json", text)

@@ -1,0 +1,100 @@
+"""Run health — how much of a run can be trusted: posed fraction, lost spans, plausibility.
+
+A SLAM run can end with a small ATE and still be useless: the ATE only covers the frames that
+have a pose, and a Sim(3) alignment hides a collapsed scale. ``mslam run`` therefore reports,
+in ``summary.json`` and on the console:
+
+* the fraction of frames with a pose (``frames_posed_fraction``) and the spans of frames seen
+  while lost (``lost_spans``: ``[first, last]`` frame indices, inclusive);
+* the frames where relocalisation succeeded (``relocalised_at``);
+* ``warnings``: one sentence per reason to distrust the run, and ``plausible`` (no warning).
+
+A run is flagged when fewer than :data:`MIN_POSED_FRACTION` of its frames have a pose, and when
+the prior is metric (depth-based: ``rgbd``, ``synthetic``) but the aligned Sim(3) scale is
+outside ``[1 / MAX_SCALE_FACTOR, MAX_SCALE_FACTOR]``.
+
+Public names, in reading order:
+    MIN_POSED_FRACTION, MAX_SCALE_FACTOR, METRIC_PRIORS, lost_spans, relocalised_at,
+    health_report
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+__all__ = [
+    "MAX_SCALE_FACTOR",
+    "METRIC_PRIORS",
+    "MIN_POSED_FRACTION",
+    "health_report",
+    "lost_spans",
+    "relocalised_at",
+]
+
+#: Below this fraction of frames with a pose a run is flagged as implausible.
+MIN_POSED_FRACTION = 0.95
+
+#: With a metric prior, an aligned scale beyond this factor (either way) is flagged.
+MAX_SCALE_FACTOR = 1.1
+
+#: Priors whose pointmaps are metric (made from depth), so the aligned scale should be ~1.
+METRIC_PRIORS = ("rgbd", "synthetic")
+
+
+def lost_spans(poses: list[Any]) -> list[list[int]]:
+    """``[first, last]`` frame indices of each run of consecutive ``"lost"`` frames.
+
+    Args:
+        poses: the system's per-frame records (``FramePose``: ``index``, ``status``), in order.
+    """
+    spans: list[list[int]] = []
+    prev_lost = False
+    for p in poses:
+        lost = p.status == "lost"
+        if lost and prev_lost:
+            spans[-1][1] = int(p.index)
+        elif lost:
+            spans.append([int(p.index), int(p.index)])
+        prev_lost = lost
+    return spans
+
+
+def relocalised_at(poses: list[Any]) -> list[int]:
+    """Frame indices where relocalisation succeeded."""
+    return [int(p.index) for p in poses if p.status == "relocalised"]
+
+
+def health_report(
+    poses: list[Any], frames: int, posed: int, prior: str | None, ate: dict[str, Any] | None
+) -> dict[str, Any]:
+    """The trust fields of ``summary.json`` (module docstring).
+
+    Args:
+        poses: per-frame records; frames: frames read; posed: frames with a pose;
+        prior: the prior's name; ate: ``AteResult.to_dict()`` of the run, or None.
+
+    Returns:
+        ``frames_posed_fraction``, ``lost_spans``, ``relocalised_at``, ``warnings``,
+        ``plausible``.
+    """
+    frac = posed / frames if frames else 0.0
+    warnings = []
+    if frac < MIN_POSED_FRACTION:
+        warnings.append(
+            f"only {posed} of {frames} frames ({100 * frac:.0f}%) have a pose "
+            f"(< {100 * MIN_POSED_FRACTION:.0f}%); the ATE covers those frames only"
+        )
+    if ate is not None and prior in METRIC_PRIORS:
+        s = float(ate.get("scale", 1.0))
+        if not (1.0 / MAX_SCALE_FACTOR <= s <= MAX_SCALE_FACTOR):
+            warnings.append(
+                f"aligned scale {s:.3g} is far from 1 although the {prior} prior is metric; "
+                "the Sim(3) alignment hides a scale error"
+            )
+    return {
+        "frames_posed_fraction": frac,
+        "lost_spans": lost_spans(poses),
+        "relocalised_at": relocalised_at(poses),
+        "warnings": warnings,
+        "plausible": not warnings,
+    }
