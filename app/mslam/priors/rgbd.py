@@ -41,9 +41,10 @@ import numpy as np
 from scipy import ndimage
 
 from mslam.datasets.frame import Frame
+from mslam.priors import rgbd_pose as pose
 from mslam.priors.base import PairPrediction
 from mslam.priors.descriptors import DescriptorConfig, patch_descriptors
-from mslam_ref import sim3, so3
+from mslam_ref import sim3
 from mslam_ref.conventions import FloatArray
 from mslam_ref.pointmap import backproject, project, scale_intrinsics
 
@@ -79,7 +80,7 @@ class RGBDPriorConfig:
             is associated at the end.
         icp_max_change: ... and if it moves the PnP pose by less than this (m, and rad).
         icp_min_agree: ... and if it still explains this share of the matches the PnP pose
-            explains (ICP can slide along a plane; ``_icp_agrees``).
+            explains (ICP can slide along a plane; ``rgbd_pose.icp_agrees``).
         fill_depth: depth (m) used when a frame has no valid depth at all.
         conf_max, conf_sigma: ``C = 1 + conf_max exp(-σ(z) / conf_sigma)`` on valid depth.
         consistency_tol: relative depth disagreement that marks a pixel of j inconsistent.
@@ -137,21 +138,6 @@ def fill_depth(depth: FloatArray, default: float = 3.0) -> tuple[FloatArray, np.
         return depth.copy(), valid
     _, (iy, ix) = ndimage.distance_transform_edt(~valid, return_indices=True)
     return depth[iy, ix], valid
-
-
-def _normals(X: FloatArray, valid: np.ndarray) -> tuple[FloatArray, np.ndarray]:
-    """Unit normals of an (H, W, 3) pointmap from central differences, and their validity."""
-    N = np.zeros_like(X)
-    ok = np.zeros(valid.shape, bool)
-    du = X[1:-1, 2:] - X[1:-1, :-2]
-    dv = X[2:, 1:-1] - X[:-2, 1:-1]
-    n = np.cross(du, dv)
-    norm = np.linalg.norm(n, axis=-1)
-    inner = valid[1:-1, 1:-1] & valid[1:-1, 2:] & valid[1:-1, :-2] & valid[2:, 1:-1]
-    inner &= valid[:-2, 1:-1] & (norm > 1e-12)
-    N[1:-1, 1:-1] = n / np.maximum(norm, 1e-12)[..., None]
-    ok[1:-1, 1:-1] = inner
-    return N, ok
 
 
 def _kinect_sigma(z: FloatArray) -> FloatArray:
@@ -280,133 +266,11 @@ class RGBDPrior:
         obj = (rays * z[:, None])[ok]
         img = uv_i[ti][ok]
         for flags in (cv2.SOLVEPNP_EPNP, cv2.SOLVEPNP_ITERATIVE):
-            T_ij, n = self._pnp(obj, img, Ki, flags)
+            T_ij, n = pose.pnp(obj, img, Ki, flags, cfg)
             if n >= cfg.min_inliers:
-                T_icp = self._refine_icp(frame_i, frame_j, T_ij)
-                return self._icp_agrees(T_icp, T_ij, obj, img, Ki), n
+                T_icp = pose.refine_icp(frame_i.depth, frame_j.depth, Ki, Kj, T_ij, cfg)
+                return pose.icp_agrees(T_icp, T_ij, obj, img, Ki, cfg), n
         return sim3.identity(), n
-
-    def _refine_icp(self, frame_i: Frame, frame_j: Frame, T_ij: FloatArray) -> FloatArray:
-        """Point-to-plane ICP of j's depth points onto i's depth map, from the PnP pose.
-
-        Projective association (the point of i at the pixel where ``T_ij X_j`` projects),
-        normals of i from central differences, Gauss-Newton on a left perturbation
-        ``exp([dt, dw]) T``, residual ``n · (P - Y)``, association distance shrinking from
-        ``icp_dist`` to ``icp_dist_final``. The PnP pose is kept if too few pixels end up
-        associated or the refinement moves it by more than ``icp_max_change``.
-        """
-        cfg = self.cfg
-        if cfg.icp_iters <= 0 or frame_i.depth is None:
-            return T_ij
-        Ki, Kj = self.K_for(frame_i), self.K_for(frame_j)
-        zj, zi = frame_j.depth, frame_i.depth
-        Xj = backproject(zj, Kj)[zj > 0]
-        if len(Xj) < 100:
-            return T_ij
-        Yi = backproject(zi, Ki)
-        Ni, ok_n = _normals(Yi, zi > 0)
-        H, W = zi.shape
-        R, t = so3.to_matrix(T_ij[3:7]), T_ij[:3].copy()
-        R0, t0 = R.copy(), t.copy()
-        n_it = cfg.icp_iters
-        frac = 0.0
-        for it in range(n_it):
-            a = it / max(n_it - 1, 1)
-            dist = cfg.icp_dist ** (1 - a) * cfg.icp_dist_final**a
-            P = Xj @ R.T + t
-            z = P[:, 2]
-            front = z > 1e-3
-            zs = np.where(front, z, 1.0)
-            u = np.round(Ki[0, 0] * P[:, 0] / zs + Ki[0, 2]).astype(np.int64)
-            v = np.round(Ki[1, 1] * P[:, 1] / zs + Ki[1, 2]).astype(np.int64)
-            ok = front & (u >= 0) & (u < W) & (v >= 0) & (v < H)
-            u, v = np.where(ok, u, 0), np.where(ok, v, 0)
-            ok &= ok_n[v, u]
-            Y, N = Yi[v, u], Ni[v, u]
-            ok &= np.linalg.norm(P - Y, axis=1) < dist
-            frac = float(ok.mean())
-            if ok.sum() < 50:
-                return T_ij
-            P, Y, N = P[ok], Y[ok], N[ok]
-            r = np.sum(N * (P - Y), axis=1)
-            J = np.concatenate([N, np.cross(P, N)], axis=1)
-            w = 1.0 / np.maximum(1.0, np.abs(r) / (0.25 * dist))  # Huber weights
-            A = J.T @ (J * w[:, None])
-            b = -J.T @ (w * r)
-            try:
-                d = np.linalg.solve(A + 1e-9 * np.eye(6), b)
-            except np.linalg.LinAlgError:
-                return T_ij
-            dR = so3.to_matrix(so3.exp(d[3:]))
-            R, t = dR @ R, dR @ t + d[:3]
-            if np.linalg.norm(d) < 1e-7:
-                break
-        rot_change = np.linalg.norm(so3.log(so3.from_matrix(R.T @ R0)))
-        if (
-            frac < cfg.icp_min_frac
-            or np.linalg.norm(t - t0) > cfg.icp_max_change
-            or rot_change > cfg.icp_max_change
-            or not np.all(np.isfinite(t))
-        ):
-            return T_ij
-        return np.concatenate([t, so3.from_matrix(R), [1.0]])
-
-    def _icp_agrees(self, T_icp, T_pnp, obj, img, K) -> FloatArray:
-        """``T_icp`` if it still explains the feature matches, else ``T_pnp``.
-
-        Point-to-plane ICP can slide along a dominant plane (a wall, the floor) where the depth
-        maps alone do not constrain the motion: on the synthetic loop it moved a 3-frame pose
-        by 8 cm while every PnP inlier stopped reprojecting. The refined pose is kept only if
-        at least ``icp_min_agree`` of the matches the PnP pose explains (within ``2 ransac_px``,
-        which tolerates RGB-to-depth misregistration) are still explained.
-        """
-
-        def explained(T: FloatArray) -> int:
-            X = sim3.act(T, obj)
-            z = np.where(X[:, 2] > 1e-6, X[:, 2], np.nan)
-            uv = X[:, :2] / z[:, None] * K[[0, 1], [0, 1]] + K[:2, 2]
-            return int(np.sum(np.linalg.norm(uv - img, axis=1) <= 2 * self.cfg.ransac_px))
-
-        n_pnp = explained(T_pnp)
-        return T_icp if explained(T_icp) >= self.cfg.icp_min_agree * n_pnp else T_pnp
-
-    def _pnp(self, obj: FloatArray, img: FloatArray, K: FloatArray, flags: int):
-        """RANSAC PnP with ``flags`` + LM refinement, then a sanity check of the result.
-
-        EPnP inside RANSAC occasionally returns a degenerate hypothesis (translations of
-        ~1e13 m whose "inliers" are points projected to infinity); such a pose, or one that
-        puts inliers behind camera i, moves them by more than ``max_translation``, or whose
-        refined inliers do not reproject within ``ransac_px``, is reported as a failure
-        (0 inliers) so that the caller can fall back to another solver.
-        """
-        cfg = self.cfg
-        try:
-            found, rvec, tvec, inl = cv2.solvePnPRansac(
-                obj, img, K, None, iterationsCount=cfg.ransac_iters,
-                reprojectionError=cfg.ransac_px, confidence=0.999, flags=flags,
-            )  # fmt: skip
-        except cv2.error:
-            return sim3.identity(), 0
-        if not found or inl is None or len(inl) < cfg.min_inliers:
-            return sim3.identity(), 0
-        inl = inl.ravel()
-        if not (np.all(np.isfinite(rvec)) and np.all(np.isfinite(tvec))):
-            return sim3.identity(), 0
-        rvec, tvec = cv2.solvePnPRefineLM(obj[inl], img[inl], K, None, rvec, tvec)
-        R, t = so3.to_matrix(so3.exp(rvec.ravel())), tvec.ravel()
-        if not (np.all(np.isfinite(R)) and np.all(np.isfinite(t))):
-            return sim3.identity(), 0
-        if np.linalg.norm(t) > cfg.max_translation:
-            return sim3.identity(), 0
-        Xi = obj[inl] @ R.T + t
-        if np.any(Xi[:, 2] <= 1e-3):
-            return sim3.identity(), 0
-        uv = Xi[:, :2] / Xi[:, 2:] * K[[0, 1], [0, 1]] + K[:2, 2]
-        err = np.linalg.norm(uv - img[inl], axis=1)
-        n = int(np.sum(err <= cfg.ransac_px))
-        if n < cfg.min_inliers:
-            return sim3.identity(), 0
-        return np.concatenate([t, so3.exp(rvec.ravel()), [1.0]]), n
 
     # -- protocol ----------------------------------------------------------------------------
     def _view(self, frame: Frame) -> tuple[FloatArray, FloatArray, np.ndarray]:
