@@ -144,25 +144,38 @@ def test_ctrl_c_writes_what_exists(tmp_path, monkeypatch, fast64):
     assert len(read_tum(out / "trajectory.txt")[0]) == 5
 
 
-def test_unreadable_frames_are_skipped_and_counted(tmp_path, monkeypatch, fast64):
+def _break_frames(monkeypatch, bad):
     from mslam_ref.synthetic import SyntheticSequence
 
     original = SyntheticSequence._load
 
     def broken(self, i):
-        if i in (3, 7):
+        if i in bad:
             raise OSError(f"frame {i}: corrupt file")
         return original(self, i)
 
     monkeypatch.setattr(SyntheticSequence, "_load", broken)
+
+
+def test_unreadable_frame_is_exit_2_without_outputs(tmp_path, monkeypatch, capsys):
+    _break_frames(monkeypatch, (3,))
     out = tmp_path / "out"
+    rc = main(["run", "synthetic:loop:6:32x24", "--out", str(out), "--kernels", "ref", "--quiet"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "cannot read frame 3" in err and err.count("\n") == 1
+    assert not out.exists()
+
+
+def test_unreadable_frames_are_skipped_and_counted(tmp_path, monkeypatch, fast64):
+    _break_frames(monkeypatch, (3, 7))
+    out = tmp_path / "out"
+    argv = ["run", "synthetic:loop:12:64x48", "--out", str(out), "--kernels", "fast", "--quiet"]
     with pytest.warns(RuntimeWarning, match="skipping frame"):
-        rc = main(
-            ["run", "synthetic:loop:12:64x48", "--out", str(out), "--kernels", "fast", "--quiet"]
-        )
+        rc = main([*argv, "--skip-bad-frames"])
     assert rc == 0
     s = json.loads((out / "summary.json").read_text())
     assert s["skipped_frames"] == 2 and s["frames"] == 10
+    assert [k["frame"] for k in s["skipped"]] == [3, 7]
 
 
 def test_config_inherit_and_overrides(tmp_path):

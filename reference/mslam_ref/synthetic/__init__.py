@@ -29,17 +29,37 @@ from mslam_ref.synthetic.paths import PATHS, camera_path, jump_indices
 from mslam_ref.synthetic.scene import Scene, cast_rays, make_scene, render
 
 __all__ = [
+    "MAX_FRAMES",
+    "MAX_PIXELS",
     "PATHS",
     "Scene",
     "SyntheticSequence",
     "camera_path",
     "cast_rays",
+    "check_synthetic_size",
     "intrinsics",
     "jump_indices",
     "make_scene",
     "make_sequence",
     "render",
 ]
+
+
+#: Largest synthetic sequence (frames) and frame (pixels): the poses and the vectorised ray
+#: casting allocate in proportion, so larger requests are refused before any allocation.
+MAX_FRAMES = 100_000
+MAX_PIXELS = 2048 * 1536
+
+
+def check_synthetic_size(n_frames: int, width: int, height: int, what: str = "synthetic") -> None:
+    """``ValueError`` naming ``what`` unless 2 <= frames <= MAX_FRAMES and W·H <= MAX_PIXELS."""
+    if not 2 <= int(n_frames) <= MAX_FRAMES:
+        raise ValueError(f"{what}: frames must be in [2, {MAX_FRAMES}] (the cap), got {n_frames}")
+    if int(width) * int(height) > MAX_PIXELS:
+        raise ValueError(
+            f"{what}: {width}x{height} is larger than the cap of {MAX_PIXELS} pixels "
+            "(e.g. 2048x1536)"
+        )
 
 
 def intrinsics(width: int, height: int, fov_deg: float = 70.0) -> FloatArray:
@@ -125,8 +145,8 @@ def make_sequence(
 
     Args:
         name: camera path, one of :data:`PATHS` (``loop``, ``jump``, ``rotation``, ``forward``).
-        n_frames: number of frames (>= 2).
-        width, height: image size in pixels.
+        n_frames: number of frames (2 to :data:`MAX_FRAMES`).
+        width, height: image size in pixels (at most :data:`MAX_PIXELS`).
         seed: seed of the scene and of the path's small variations (deterministic).
         fov_deg: horizontal field of view.
 
@@ -135,6 +155,7 @@ def make_sequence(
     """
     if name.startswith("synthetic:"):
         name = name.split(":", 1)[1]
+    check_synthetic_size(n_frames, width, height, f"synthetic:{name}")
     T_WC = camera_path(name, n_frames, seed)
     K = intrinsics(width, height, fov_deg)
     return SyntheticSequence(name, make_scene(seed), T_WC, K, width, height, seed)

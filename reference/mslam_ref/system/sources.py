@@ -5,7 +5,8 @@ a missing or inconsistent calibration, or a prior that cannot work on the source
 error (``ValueError``/``FileNotFoundError``) and no output is written:
 
 * SOURCE ``None`` → the built-in synthetic ``loop`` (:data:`DEFAULT_SYNTHETIC`);
-  ``synthetic:NAME[:FRAMES[:WxH]]`` → ``mslam_ref.synthetic.make_sequence``; anything else
+  ``synthetic:NAME[:FRAMES[:WxH]]`` (the scheme only; frame and size caps checked before any
+  allocation) → ``mslam_ref.synthetic.make_sequence``; anything else
   → ``mslam_ref.datasets.load_sequence`` (TUM-layout folder, 7-Scenes folder, image folder,
   video file).
 * ``--calib FILE`` (upstream: forces ``use_calib``) sets the intrinsics; its ``width``/``height``
@@ -85,6 +86,9 @@ def parse_synthetic(source: str) -> tuple[str, int, int, int]:
         raise ValueError(f"SOURCE {source!r}: expected synthetic:NAME[:FRAMES[:WxH]]") from None
     if n < 2 or w < 16 or h < 16:
         raise ValueError(f"SOURCE {source!r}: need >= 2 frames and >= 16x16 pixels")
+    from mslam_ref.synthetic import check_synthetic_size
+
+    check_synthetic_size(n, w, h, f"SOURCE {source!r}")
     return name, n, w, h
 
 
@@ -160,7 +164,9 @@ def open_source(
         from mslam_ref.datasets.io import read_calibration
 
         cal = read_calibration(calib)
-    synthetic = source is None or str(source).startswith("synthetic")
+    # Only the explicit scheme selects a built-in scene: a folder named "synthetic_kitchen" is a
+    # folder.
+    synthetic = source is None or str(source).startswith("synthetic:")
     if synthetic:
         from mslam_ref.synthetic import make_sequence
 
