@@ -51,15 +51,26 @@ def read_trajectory(path: str | Path) -> tuple[FloatArray, FloatArray]:
     """
     path = Path(path)
     rows = read_text_rows(path, 8)
+    linenos = [
+        k
+        for k, line in enumerate(path.read_text().splitlines(), start=1)
+        if line.strip() and not line.strip().startswith("#")
+    ]
     try:
         data = np.array([[float(x) for x in r[:8]] for r in rows], dtype=np.float64)
     except ValueError:
         raise ValueError(f"{path}: non-numeric trajectory entry") from None
     data = data.reshape(-1, 8)
+    bad = np.flatnonzero(~np.all(np.isfinite(data), axis=1))
+    if bad.size:
+        col = ["timestamp", "tx", "ty", "tz", "qx", "qy", "qz", "qw"]
+        j = int(np.flatnonzero(~np.isfinite(data[bad[0]]))[0])
+        raise ValueError(f"{path}:{linenos[bad[0]]}: non-finite {col[j]}")
     q = data[:, 4:8]
     n = np.linalg.norm(q, axis=1, keepdims=True)
-    if np.any(n < 1e-9) or not np.all(np.isfinite(data)):
-        raise ValueError(f"{path}: zero or non-finite quaternion")
+    zero = np.flatnonzero(n[:, 0] < 1e-9)
+    if zero.size:
+        raise ValueError(f"{path}:{linenos[zero[0]]}: quaternion of zero length")
     T = np.concatenate([data[:, 1:4], q / n, np.ones((len(data), 1))], axis=1)
     return data[:, 0], T
 
