@@ -211,3 +211,24 @@ def test_baseline_without_depth_is_refused_before_the_run(tmp_path, capsys, monk
     rc = main(["run", "synthetic:loop:4:32x24", "--out", str(tmp_path / "o"), "--baseline", *RUN])
     one_line_error(capsys, rc, "--baseline")
     assert not calls and not (tmp_path / "o").exists()
+
+
+def test_calibration_size_mismatch_is_named_as_such(tmp_path, capsys):
+    seq = tmp_path / "seq"
+    assert main(["synth", "loop", "--out", str(seq), "--frames", "2", "--width", "32",
+                 "--height", "24"]) == 0  # fmt: skip
+    capsys.readouterr()
+    calib = tmp_path / "c.yaml"
+    calib.write_text("width: 64\nheight: 48\ncalibration: [50.0, 50.0, 32.0, 24.0]\n")
+    rc = main(["run", str(seq), "--out", str(tmp_path / "o"), "--calib", str(calib), *RUN])
+    err = one_line_error(capsys, rc, "does not match the calibration 64x48")
+    assert err.startswith("mslam run: error: --calib:") and "cannot read" not in err
+
+
+def test_nan_translation_in_ground_truth_is_named(tmp_path):
+    from mslam_ref.datasets.tum import read_trajectory
+
+    path = tmp_path / "groundtruth.txt"
+    path.write_text("# t tx ty tz qx qy qz qw\n0 0 0 0 0 0 0 1\n1 nan 0 0 0 0 0 1\n")
+    with pytest.raises(ValueError, match=r"groundtruth.txt:3: non-finite tx"):
+        read_trajectory(path)
