@@ -67,3 +67,24 @@ def test_named_tests_and_tutorials_exist() -> None:
             if not list((ROOT / "tutorials").glob(f"{number}_*.py")):
                 missing.append(f"tutorial {number}")
     assert not missing, f"paper_map names missing tests/tutorials: {missing}"
+
+
+def test_reliability_page_names_existing_tests() -> None:
+    """docs/reliability.md: every test it names exists in the file it names (or the default
+    reliability/guards files)."""
+    text = (ROOT / "docs" / "reliability.md").read_text()
+    defaults = [
+        ROOT / "tests" / "system" / "test_reliability_outputs.py",
+        ROOT / "tests" / "system" / "test_reliability_inputs.py",
+        ROOT / "tests" / "parity" / "test_guards.py",
+    ]
+    sources = "".join(p.read_text() for p in defaults)
+    missing = []
+    for path, name in re.findall(r"`(?:(tests/[\w/]+\.py)::)?(test_\w+)`", text):
+        src = (ROOT / path).read_text() if path else sources
+        if f"def {name}(" not in src:
+            missing.append(f"{path or 'reliability tests'}::{name}")
+    for path in re.findall(r"`(tests/[\w/]+\.py)`", text):
+        if not (ROOT / path).exists():
+            missing.append(path)
+    assert not missing, f"docs/reliability.md names missing tests: {missing}"
