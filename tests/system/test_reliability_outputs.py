@@ -19,7 +19,13 @@ from mslam_ref.cli import main
 
 SRC = "synthetic:loop:6:32x24"
 RUN = ["--kernels", "ref", "--quiet"]
-OUTPUTS = {"trajectory.txt", "keyframes.txt", "reconstruction.ply", "summary.json", "trajectory.png"}
+OUTPUTS = {
+    "trajectory.txt",
+    "keyframes.txt",
+    "reconstruction.ply",
+    "summary.json",
+    "trajectory.png",
+}
 
 
 def strict_json(path: Path) -> dict:
@@ -80,7 +86,18 @@ def test_out_below_a_regular_file(tmp_path, capsys, cmd):
     out = str(tmp_path / "file" / "out")
     argv = {
         "run": ["run", SRC, "--out", out, *RUN],
-        "synth": ["synth", "loop", "--out", out, "--frames", "2", "--width", "16", "--height", "16"],
+        "synth": [
+            "synth",
+            "loop",
+            "--out",
+            out,
+            "--frames",
+            "2",
+            "--width",
+            "16",
+            "--height",
+            "16",
+        ],
         "ba": ["ba", str(_bal(tmp_path)), "--out", out],
     }[cmd]
     one_line_error(capsys, main(argv), "is a file, not a folder")
@@ -141,10 +158,46 @@ def test_full_disk_is_one_line_and_leaves_nothing(tmp_path, monkeypatch, capsys,
     out = tmp_path / "out"
     argv = {
         "run": ["run", SRC, "--out", str(out), *RUN],
-        "synth": ["synth", "loop", "--out", str(out), "--frames", "2", "--width", "16", "--height", "16"],
+        "synth": [
+            "synth",
+            "loop",
+            "--out",
+            str(out),
+            "--frames",
+            "2",
+            "--width",
+            "16",
+            "--height",
+            "16",
+        ],
     }[cmd]
     one_line_error(capsys, main(argv), "No space left on device")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_ba_full_disk(tmp_path, monkeypatch, capsys):
+    from mslam_ref.commands import outdir
+
+    def full(*a, **k):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    bal = _bal(tmp_path)
+    monkeypatch.setattr(outdir, "write_atomic", full)
+    rc = main(["ba", str(bal), "--out", str(tmp_path / "solved.txt"), "--iterations", "1"])
+    one_line_error(capsys, rc, "No space left on device")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["problem.txt"]
+
+
+def test_out_that_holds_the_source_or_the_cwd_is_refused(tmp_path, monkeypatch, capsys):
+    seq = tmp_path / "seq"
+    argv = ["synth", "loop", "--out", str(seq), "--frames", "2", "--width", "16", "--height", "16"]
+    assert main(argv) == 0
+    capsys.readouterr()
+    rc = main(["run", str(seq / "rgb"), "--out", str(seq), "--overwrite", *RUN])
+    one_line_error(capsys, rc, "contains SOURCE")
+    monkeypatch.chdir(seq)
+    one_line_error(capsys, main(["run", SRC, "--out", ".", "--overwrite", *RUN]), "current folder")
+    assert (seq / "rgb.txt").is_file()
 
 
 @pytest.mark.parametrize(

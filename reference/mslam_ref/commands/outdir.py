@@ -54,6 +54,8 @@ def check_target(
     """
     out = Path(out)
     anc = _existing_ancestor(out)
+    if Path.cwd().resolve().is_relative_to(out.resolve()):
+        raise UserError(f"{flag} {out}: is the current folder or contains it; name a new folder")
     if kind == "folder":
         if out.exists() and not out.is_dir():
             raise UserError(f"{flag} {out}: exists and is not a folder")

@@ -97,6 +97,8 @@ def run(args: argparse.Namespace) -> int:
     from mslam_ref.system import open_source, run_slam, write_outputs
 
     out = check_target(args.out, args.overwrite)
+    if args.source and Path(args.source).resolve().is_relative_to(out.resolve()):
+        raise UserError(f"--out {out}: contains SOURCE {args.source}; choose another folder")
     if args.max_frames is not None and args.max_frames < 1:
         raise UserError(f"--max-frames: must be >= 1, got {args.max_frames}")
     cfg = load_config(args.config, args.overrides)
