@@ -274,7 +274,9 @@ def arm(mod, name):
         return f(*a, **k)
     setattr(mod, name, wrapped)
 import mslam_ref.commands.outdir as od
+from mslam_ref.datasets import tum
 arm(c, "write_atomic"); arm(mio, "write_tum"); arm(mio, "write_ply"); arm(od, "_move_into_place")
+arm(tum, "encode_png")
 from mslam_ref.cli import main
 sys.exit(main(sys.argv[2:]))
 """
@@ -298,3 +300,16 @@ def test_sigkill_mid_write_leaves_nothing_or_one_whole_set(tmp_path, kill_at):
     # the next run removes the killed run's temporary folder and succeeds
     assert subprocess.run([*argv[:2], "99", *argv[4:]], env=env, timeout=300).returncode == 0
     whole_set_or_nothing(out)
+
+
+@pytest.mark.parametrize("kill_at", [1, 3, 7])
+def test_sigkill_during_synth_leaves_nothing(tmp_path, kill_at):
+    out = tmp_path / "seq"
+    env = dict(os.environ, OPENBLAS_NUM_THREADS="1")
+    synth = ["synth", "loop", "--out", str(out), "--frames", "3", "--width", "16", "--height", "16"]
+    proc = subprocess.run([sys.executable, "-c", _KILLER, str(kill_at), *synth], env=env,
+                          capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert proc.returncode == -signal.SIGKILL, proc.stderr
+    assert not out.exists()
+    assert main(synth) == 0  # and the killed run's temporary files go with the next run
+    assert [p.name for p in tmp_path.iterdir()] == ["seq"]

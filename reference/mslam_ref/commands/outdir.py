@@ -3,8 +3,9 @@
 * :func:`check_target` — before any work: the target must not lie below a regular file, must
   not be an existing non-empty folder (or an existing file, for a file target) unless
   ``--overwrite``, and its nearest existing ancestor must be writable.
-* :func:`staged_folder` — the whole output set is written into a hidden temporary folder beside
-  the target (``.NAME.mslam-tmp-PID``) and moved into place with one rename; on any error or
+* :func:`staged_folder` — the whole output set is written into a folder inside a hidden
+  temporary folder beside the target (``.NAME.mslam-tmp-PID/NAME``) and moved into place with
+  one rename; every temporary file of the writers stays inside that box; on any error or
   Ctrl-C the temporary folder is removed, so the target holds either nothing new or one whole
   set. Temporary folders of killed runs (their PID is gone) are removed by the next run.
 * :func:`write_file_atomic` — the same for a single file (``ba --out``).
@@ -112,17 +113,19 @@ def staged_folder(out: str | Path, overwrite: bool) -> Iterator[Path]:
     out = Path(os.path.abspath(check_target(out, overwrite)))
     out.parent.mkdir(parents=True, exist_ok=True)
     _remove_stale(out.parent, out.name)
-    tmp = out.with_name(f".{out.name}{_TMP_TAG}{os.getpid()}")
-    shutil.rmtree(tmp, ignore_errors=True)
-    tmp.mkdir()
+    box = out.with_name(f".{out.name}{_TMP_TAG}{os.getpid()}")
+    shutil.rmtree(box, ignore_errors=True)
+    box.mkdir()
+    stage = box / out.name  # writers that stage on their own (write_tum) stay inside the box
+    stage.mkdir()
     try:
-        yield tmp
+        yield stage
         check_target(out, overwrite)
-        _move_into_place(tmp, out)
+        _move_into_place(stage, out)
     except OSError as exc:
         raise UserError(f"cannot write the outputs to {out}: {exc.strerror or exc}") from None
     finally:
-        shutil.rmtree(tmp, ignore_errors=True)
+        shutil.rmtree(box, ignore_errors=True)
 
 
 def write_file_atomic(out: Path, data: bytes | str, overwrite: bool) -> None:
