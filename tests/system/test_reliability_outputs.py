@@ -182,10 +182,30 @@ def test_ba_full_disk(tmp_path, monkeypatch, capsys):
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
 
     bal = _bal(tmp_path)
-    monkeypatch.setattr(outdir, "write_atomic", full)
+    monkeypatch.setattr(outdir, "_write", full)
     rc = main(["ba", str(bal), "--out", str(tmp_path / "solved.txt"), "--iterations", "1"])
     one_line_error(capsys, rc, "No space left on device")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["problem.txt"]
+
+
+def test_sigkill_during_ba_out_leaves_no_temporary_file(tmp_path):
+    bal, out = _bal(tmp_path), tmp_path / "solved.txt"
+    code = (
+        "import os, signal, sys\n"
+        "import mslam_ref.commands.outdir as od\n"
+        "def killed(path, data):\n"
+        "    open(path, 'w').close()\n"
+        "    os.kill(os.getpid(), signal.SIGKILL)\n"
+        "od._write = killed\n"
+        "from mslam_ref.cli import main\n"
+        "sys.exit(main(sys.argv[1:]))\n"
+    )
+    argv = ["ba", str(bal), "--out", str(out), "--iterations", "1"]
+    proc = subprocess.run([sys.executable, "-c", code, *argv], capture_output=True, timeout=300)
+    assert proc.returncode == -signal.SIGKILL
+    assert not out.exists() and len(list(tmp_path.iterdir())) == 2  # the 0-byte temporary file
+    assert main(argv) == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["problem.txt", "solved.txt"]
 
 
 def test_out_that_holds_the_source_or_the_cwd_is_refused(tmp_path, monkeypatch, capsys):

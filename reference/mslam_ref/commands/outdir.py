@@ -21,7 +21,7 @@ import shutil
 from collections.abc import Iterator
 from pathlib import Path
 
-from mslam_ref.commands import UserError, write_atomic
+from mslam_ref.commands import UserError
 
 __all__ = ["check_target", "staged_folder", "write_file_atomic"]
 
@@ -87,7 +87,10 @@ def _remove_stale(parent: Path, name: str) -> None:
     for p in parent.glob(f".{name}{_TMP_TAG}*"):
         pid = p.name.rsplit("-", 1)[-1]
         if pid.isdigit() and int(pid) != os.getpid() and not _pid_alive(int(pid)):
-            shutil.rmtree(p, ignore_errors=True)
+            if p.is_dir():
+                shutil.rmtree(p, ignore_errors=True)
+            else:
+                p.unlink(missing_ok=True)
 
 
 def _move_into_place(tmp: Path, out: Path) -> None:
@@ -129,9 +132,20 @@ def staged_folder(out: str | Path, overwrite: bool) -> Iterator[Path]:
 
 
 def write_file_atomic(out: Path, data: bytes | str, overwrite: bool) -> None:
-    """Write one output file through a temporary file and a rename (``ba --out``)."""
-    check_target(out, overwrite, kind="file")
+    """Write one output file (``ba --out``) as ``.NAME.mslam-tmp-PID`` beside it, then rename;
+    a killed writer's temporary file is removed by the next write to the same target."""
+    out = Path(os.path.abspath(check_target(out, overwrite, kind="file")))
+    _remove_stale(out.parent, out.name)
+    tmp = out.with_name(f".{out.name}{_TMP_TAG}{os.getpid()}")
     try:
-        write_atomic(out, data)
+        _write(tmp, data)
+        os.replace(tmp, out)
     except OSError as exc:
         raise UserError(f"cannot write {out}: {exc.strerror or exc}") from None
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def _write(path: Path, data: bytes | str) -> None:
+    with open(path, "wb" if isinstance(data, bytes) else "w") as fh:
+        fh.write(data)
