@@ -108,3 +108,24 @@ def test_no_citations_outside_the_repository() -> None:
             if pattern.search(line):
                 bad.append(f"{name}:{k}")
     assert not bad, f"citations of files outside the repository: {bad}"
+
+
+def test_reliability_page_names_existing_tests() -> None:
+    """docs/reliability.md: every test it names exists in the file it names (or the default
+    reliability/guards files)."""
+    text = (ROOT / "docs" / "reliability.md").read_text()
+    defaults = [
+        ROOT / "tests" / "app" / "test_reliability_outputs.py",
+        ROOT / "tests" / "app" / "test_reliability_inputs.py",
+        ROOT / "tests" / "parity" / "test_guards.py",
+    ]
+    sources = "".join(p.read_text() for p in defaults)
+    missing = []
+    for path, name in re.findall(r"`(?:(tests/[\w/]+\.py)::)?(test_\w+)`", text):
+        src = (ROOT / path).read_text() if path else sources
+        if f"def {name}(" not in src:
+            missing.append(f"{path or 'reliability tests'}::{name}")
+    for path in re.findall(r"`(tests/[\w/]+\.py)`", text):
+        if not (ROOT / path).exists():
+            missing.append(path)
+    assert not missing, f"docs/reliability.md names missing tests: {missing}"

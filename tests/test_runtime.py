@@ -14,6 +14,7 @@ from tolerances import tol
 
 import mslam_fast
 import mslam_fast.sim3 as F
+from mslam_fast import _runtime
 from mslam_ref import sim3 as R
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -88,12 +89,15 @@ def test_bad_precision_raises(fp: object) -> None:
 
 @pytest.mark.skipif(HAS_NVIDIA, reason="a GPU driver exists here")
 def test_cuda_without_gpu_raises_and_does_not_fall_back(restore_cpu: None) -> None:
+    mslam_fast.init("cpu", "f32")
     with pytest.raises(RuntimeError, match="cuda"):
         mslam_fast.init("cuda", "f64")
-    assert mslam_fast.current() is None  # not a silent CPU runtime
-    # The package stays usable: the next call initialises the CPU default again.
+    # Not a silent CPU runtime in the asked precision: the earlier choice (f32) stays.
+    assert mslam_fast.current() == _runtime.Runtime("cpu", "f32")
     T = R.exp(np.arange(7.0) * 0.1)
-    np.testing.assert_allclose(F.act(T, np.ones(3)), R.act(T, np.ones(3)), **tol("sim3", "f64"))
+    got = F.act(T, np.ones(3))
+    assert got.dtype == np.float32
+    np.testing.assert_allclose(got, R.act(T, np.ones(3)), **tol("sim3", "f32"))
 
 
 @pytest.mark.gpu

@@ -29,28 +29,41 @@ import numpy as np
 from mslam_ref.ba.problem import BALProblem
 from mslam_ref.conventions import FloatArray, IntArray
 
-__all__ = ["PoseGraph", "read_bal", "read_g2o_se3", "write_bal", "write_g2o_se3"]
+__all__ = ["PoseGraph", "format_bal", "read_bal", "read_g2o_se3", "write_bal", "write_g2o_se3"]
 
 
 def _numbers(lines: list[str], start: int, count: int, path: Path, what: str) -> FloatArray:
-    """Parse ``count`` floats from ``lines[start:]`` (any layout); errors name file and line."""
+    """Parse exactly ``count`` floats from ``lines[start:]`` (any layout) and nothing after them.
+
+    Errors name the file and line: a bad or non-finite number, an early end of file, values
+    beyond ``count`` (a header that claims fewer observations, cameras or points than the file
+    holds, or trailing data).
+    """
     vals: list[float] = []
     i = start
     while len(vals) < count:
         if i >= len(lines):
-            raise ValueError(f"{path}:{i}: unexpected end of file while reading {what}")
+            raise ValueError(
+                f"{path}:{i}: file ends after {len(vals)} of {count} {what} (header counts?)"
+            )
         for tok in lines[i].split():
             try:
-                vals.append(float(tok))
+                v = float(tok)
             except ValueError:
                 raise ValueError(f"{path}:{i + 1}: bad number {tok!r} in {what}") from None
+            if not np.isfinite(v):
+                raise ValueError(f"{path}:{i + 1}: non-finite value {tok!r} in {what}")
+            vals.append(v)
         i += 1
-    if len(vals) != count:
-        raise ValueError(f"{path}:{i}: too many values in {what}")
-    arr = np.asarray(vals)
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{path}:{start + 1}: non-finite value in {what}")
-    return arr
+    extra = len(vals) > count
+    rest = next((k for k in range(i, len(lines)) if lines[k].strip()), None)
+    if extra or rest is not None:
+        line = i if extra else rest + 1
+        raise ValueError(
+            f"{path}:{line}: more values than the header's counts allow ({count} {what}); "
+            "the header does not match the file or there is trailing data"
+        )
+    return np.asarray(vals)
 
 
 def read_bal(path: str | Path) -> BALProblem:
@@ -90,9 +103,12 @@ def read_bal(path: str | Path) -> BALProblem:
                 raise ValueError
             obs_cam[k], obs_pt[k] = int(tok[0]), int(tok[1])
             obs[k] = float(tok[2]), float(tok[3])
+            if not np.all(np.isfinite(obs[k])):
+                raise ValueError
         except ValueError:
             raise ValueError(
-                f"{path}:{k + 2}: expected '<camera> <point> <x> <y>', got {lines[1 + k]!r}"
+                f"{path}:{k + 2}: expected '<camera> <point> <x> <y>' (finite numbers), "
+                f"got {lines[1 + k]!r}"
             ) from None
         if not (0 <= obs_cam[k] < M and 0 <= obs_pt[k] < P):
             raise ValueError(f"{path}:{k + 2}: camera or point index out of range")
@@ -111,6 +127,14 @@ def write_bal(problem: BALProblem, path: str | Path) -> None:
         problem: the problem (e.g. ``LMResult.problem`` after a solve).
         path: output file.
     """
+    Path(path).write_text(format_bal(problem))
+
+
+def format_bal(problem: BALProblem) -> str:
+    """The text of a BAL file (:func:`write_bal`); ``ValueError`` on a non-finite value."""
+    for name in ("cameras", "points", "obs"):
+        if not np.all(np.isfinite(getattr(problem, name))):
+            raise ValueError(f"problem.{name}: non-finite value; refusing to write a BAL file")
     M, P, O = len(problem.cameras), len(problem.points), len(problem.obs_cam)
     out = [f"{M} {P} {O}"]
     out += [
@@ -119,7 +143,7 @@ def write_bal(problem: BALProblem, path: str | Path) -> None:
     ]
     out += [f"{v:.17g}" for v in problem.cameras.reshape(-1).tolist()]
     out += [f"{v:.17g}" for v in problem.points.reshape(-1).tolist()]
-    Path(path).write_text("\n".join(out) + "\n")
+    return "\n".join(out) + "\n"
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -152,6 +176,8 @@ def _floats(tok: list[str], n: int, path: Path, lineno: int, tag: str) -> list[f
         raise ValueError(f"{path}:{lineno}: bad number in {tag}") from None
     if not all(np.isfinite(vals)):
         raise ValueError(f"{path}:{lineno}: non-finite value in {tag}")
+    if n == 7 and not np.linalg.norm(vals[3:]) > 1e-12:
+        raise ValueError(f"{path}:{lineno}: quaternion of zero length in {tag}")
     return vals
 
 

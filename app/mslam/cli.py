@@ -2,8 +2,9 @@
 
 Each sub-command lives in ``mslam.commands.<name>`` and exposes ``register(subparsers)``,
 which adds its parser and sets ``func(args) -> int`` as the default handler. Errors that users can
-fix (bad paths, corrupt files, inconsistent calibration) are raised as ``ValueError``,
-``FileNotFoundError`` or ``mslam.commands.UserError`` and printed as one line with exit code 2.
+fix (bad paths, corrupt files, inconsistent calibration, a full disk, missing permissions) are
+raised as ``ValueError``, ``OSError`` or ``mslam.commands.UserError`` and printed as one line
+with exit code 2; Ctrl-C is exit code 130; a closed stdout pipe ends quietly (docs/reliability.md).
 """
 
 from __future__ import annotations
@@ -48,13 +49,36 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.print_help()
         return 0
     try:
-        return int(args.func(args) or 0)
-    except (UserError, ValueError, FileNotFoundError) as exc:
-        print(f"mslam {args.command}: error: {exc}", file=sys.stderr)
+        rc = int(args.func(args) or 0)
+        sys.stdout.flush()  # a closed pipe (``| head -1``) shows here, not at exit
+        return rc
+    except BrokenPipeError:
+        _silence_stdout()
+        return 0
+    except (UserError, ValueError, OSError, MemoryError) as exc:
+        print(f"mslam {args.command}: error: {_one_line(exc)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"mslam {args.command}: interrupted", file=sys.stderr)
         return 130
+
+
+def _one_line(exc: BaseException) -> str:
+    """The message of ``exc`` on one line; an ``OSError`` as ``FILE: reason``."""
+    if isinstance(exc, MemoryError):
+        return "out of memory (use a smaller input size or frame count)"
+    if isinstance(exc, OSError) and exc.strerror:
+        text = f"{exc.filename}: {exc.strerror}" if exc.filename else exc.strerror
+    else:
+        text = str(exc) or type(exc).__name__
+    return " ".join(text.split())
+
+
+def _silence_stdout() -> None:
+    """The reader of stdout went away: send the rest to /dev/null so exit prints nothing."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
+    os.close(devnull)
 
 
 if __name__ == "__main__":

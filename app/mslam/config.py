@@ -16,6 +16,9 @@ Rules:
   ``ValueError`` naming the file and the key, as is a value of the wrong type.
 * Overrides ``SECTION.KEY=VALUE`` (``--set tracking.Q_conf=2.0``) are parsed as YAML scalars and
   applied last.
+* Every numeric value is then checked against its stated range (finite, integral where the key
+  counts something, positive where it divides or scales) in ``mslam.config_ranges``; the
+  error names the key and the ``--set`` or file it came from.
 
 Public names, in reading order:
     SlamConfig, DatasetConfig, RelocConfig, load_config, parse_override,
@@ -155,7 +158,10 @@ def _read_yaml(path: Path) -> dict[str, Any]:
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f" line {mark.line + 1}" if mark is not None else ""
-        raise ValueError(f"{path}:{where} invalid YAML") from None
+        problem = " ".join(str(getattr(exc, "problem", None) or "").split())
+        raise ValueError(
+            f"{path}:{where} invalid YAML{': ' + problem if problem else ''}"
+        ) from None
     if data is None:
         return {}
     if not isinstance(data, dict):
@@ -277,8 +283,10 @@ def load_config(path: str | Path | None = None, overrides: Iterable[str] = ()) -
         data, files = _load_chain(p, ())
         _check_against(schema, data, str(p))
         data = _merge(schema, data)
+    set_by: dict[str, str] = {}
     for text in overrides:
         keys, value = parse_override(text)
+        set_by[".".join(keys)] = f"--set {text}"
         node = data
         for k in keys[:-1]:
             if not isinstance(node.get(k), dict):
@@ -289,14 +297,10 @@ def load_config(path: str | Path | None = None, overrides: Iterable[str] = ()) -
         node[keys[-1]] = value
     _check_against(schema, data, "config overrides" if overrides else files[-1])
     _coerce_numbers(schema, data)
+    from mslam.config_ranges import check_ranges
 
+    check_ranges(data, set_by, files[-1])  # every value against its stated range, one place
     ds = DatasetConfig(**data["dataset"])
-    if ds.subsample < 1:
-        raise ValueError(f"{files[-1]}: dataset.subsample must be >= 1, got {ds.subsample}")
-    if ds.img_downsample != 1:
-        raise ValueError(f"{files[-1]}: dataset.img_downsample must be 1 (unsupported upstream)")
-    if ds.long_side < 0:
-        raise ValueError(f"{files[-1]}: dataset.long_side must be >= 0, got {ds.long_side}")
     return SlamConfig(
         use_calib=bool(data["use_calib"]),
         single_thread=bool(data["single_thread"]),

@@ -34,6 +34,10 @@ from mslam_ref.conventions import FloatArray, IntArray, as_float_array
 
 __all__ = ["AteResult", "associate", "ate", "reconstruction_metrics", "umeyama"]
 
+#: Relative rank tolerance of :func:`umeyama`: the second singular value of the (unit-scaled)
+#: cross-covariance must exceed this fraction of the first (collinear or static otherwise).
+_REL_RANK_TOL = 1e-10
+
 #: Alignment modes of :func:`ate` (evo: ``-as``, ``-a``, no flag).
 ALIGN_MODES = ("sim3", "se3", "none")
 
@@ -158,22 +162,30 @@ def umeyama(src: Any, dst: Any, with_scale: bool = True) -> tuple[FloatArray, Fl
     n = len(src)
     if n == 0:
         raise ValueError("src: no points to align")
-    mu_s, mu_d = src.mean(axis=0), dst.mean(axis=0)
-    sc, dc = src - mu_s, dst - mu_d
+    # Work on copies scaled to unit magnitude: no overflow for huge coordinates, and every
+    # degeneracy test below is relative (no absolute threshold).
+    k_s = max(float(np.max(np.abs(src))), np.finfo(float).tiny)
+    k_d = max(float(np.max(np.abs(dst))), np.finfo(float).tiny)
+    src_n, dst_n = src / k_s, dst / k_d
+    mu_s, mu_d = src_n.mean(axis=0), dst_n.mean(axis=0)
+    sc, dc = src_n - mu_s, dst_n - mu_d
     var_s = float(np.mean(np.sum(sc * sc, axis=1)))
     cov = dc.T @ sc / n
     U, D, Vt = np.linalg.svd(cov)
-    if np.linalg.matrix_rank(cov) < 2:
+    if not (D[0] > 0 and D[1] > _REL_RANK_TOL * D[0]):
         raise ValueError(
-            f"src: degenerate point configuration ({n} points, covariance rank < 2); "
-            "Umeyama alignment is not possible"
+            f"src: degenerate point configuration ({n} points: static, collinear or without "
+            "spread relative to their magnitude); Umeyama alignment is not possible"
         )
     S = np.ones(3)
     if np.linalg.det(U) * np.linalg.det(Vt) < 0:
         S[2] = -1.0
     R = U @ np.diag(S) @ Vt
-    s = float(np.sum(D * S) / var_s) if with_scale else 1.0
-    t = mu_d - s * R @ mu_s
+    s_n = float(np.sum(D * S) / var_s) if with_scale else k_s / k_d
+    s = s_n * k_d / k_s
+    t = k_d * (mu_d - s_n * R @ mu_s)
+    if not (np.isfinite(s) and s > 0 and np.all(np.isfinite(t))):
+        raise ValueError(f"src/dst: alignment not representable (scale {s}); check the units")
     return R, t, s
 
 
@@ -237,6 +249,10 @@ def ate(
         for name, st, p in (("est_stamps", est_stamps, p_est), ("gt_stamps", gt_stamps, p_gt)):
             if np.shape(st) != (len(p),):
                 raise ValueError(f"{name}: expected shape ({len(p)},), got {np.shape(st)}")
+        for name, st in (("est_stamps", est_stamps), ("gt_stamps", gt_stamps)):
+            st = np.asarray(st, dtype=np.float64)
+            if len(st) > 1 and np.all(st == st[0]):
+                raise ValueError(f"{name}: all {len(st)} timestamps are equal; cannot associate")
         i_est, i_gt = associate(est_stamps, gt_stamps, max_diff)
     if len(i_est) == 0:
         raise ValueError(
@@ -248,9 +264,13 @@ def ate(
     else:
         R, t, s = umeyama(src, dst, with_scale=(align == "sim3"))
     aligned = s * src @ R.T + t
-    err = np.linalg.norm(aligned - dst, axis=1)
+    with np.errstate(over="ignore", invalid="ignore"):
+        err = np.linalg.norm(aligned - dst, axis=1)
+        rmse = float(np.sqrt(np.mean(err**2)))
+    if not np.isfinite(rmse):
+        raise ValueError("est_poses/gt_poses: the errors overflow (coordinates too large)")
     return AteResult(
-        rmse=float(np.sqrt(np.mean(err**2))),
+        rmse=rmse,
         mean=float(np.mean(err)),
         median=float(np.median(err)),
         max=float(np.max(err)),

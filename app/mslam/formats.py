@@ -110,7 +110,7 @@ def write_tum(path: str | Path, timestamps: Any, T_WC: Any) -> None:
 
 
 def _read_rows(
-    path: Path, ncols: int, what: str, delim: str | None = None
+    path: Path, ncols: int, what: str, delim: str | None = None, names: tuple[str, ...] = ()
 ) -> tuple[FloatArray, list[int]]:
     """Parse a numeric table skipping ``#`` comments and blank lines; errors name file and line.
 
@@ -120,6 +120,7 @@ def _read_rows(
             ``ncols`` are kept).
         what: format name for error messages.
         delim: column separator (None = any whitespace).
+        names: column names, to name a non-finite value's column in the error.
 
     Returns:
         (rows (n, |ncols|) float64, line numbers (n,)).
@@ -143,7 +144,9 @@ def _read_rows(
         except ValueError:
             raise ValueError(f"{path}:{k}: not a number in {what} line: {raw!r}") from None
         if not all(np.isfinite(vals)):
-            raise ValueError(f"{path}:{k}: non-finite value in {what} line: {raw!r}")
+            j = int(np.flatnonzero(~np.isfinite(vals))[0])
+            col = names[j] if j < len(names) else f"value (column {j + 1})"
+            raise ValueError(f"{path}:{k}: non-finite {col} in {what} line: {raw!r}")
         rows.append(vals)
         linenos.append(k)
     if not rows:
@@ -156,6 +159,10 @@ def _check_quats(path: Path, q: FloatArray, linenos: list[int]) -> None:
     bad = np.flatnonzero(np.linalg.norm(q, axis=1) < 1e-12)
     if bad.size:
         raise ValueError(f"{path}:{linenos[bad[0]]}: quaternion has zero norm")
+
+
+#: The columns of a TUM trajectory line.
+TUM_COLUMNS = ("timestamp", "tx", "ty", "tz", "qx", "qy", "qz", "qw")
 
 
 def read_tum(path: str | Path) -> tuple[FloatArray, FloatArray]:
@@ -177,7 +184,7 @@ def read_tum(path: str | Path) -> tuple[FloatArray, FloatArray]:
         FileNotFoundError: when the file does not exist.
     """
     path = Path(path)
-    rows, linenos = _read_rows(path, 8, "TUM")
+    rows, linenos = _read_rows(path, 8, "TUM", names=TUM_COLUMNS)
     _check_quats(path, rows[:, 4:8], linenos)
     return rows[:, 0].copy(), rows[:, 1:8].copy()
 

@@ -66,7 +66,8 @@ def init(arch: str = "cpu", default_fp: Any = None) -> Runtime:
 
     Raises:
         ValueError: on an unknown arch or precision.
-        RuntimeError: when CUDA is requested and no usable GPU exists (no silent fallback).
+        RuntimeError: when CUDA is requested and no usable GPU exists (no silent fallback); the
+            runtime chosen before (arch and precision) stays active.
     """
     global _current
     if arch not in _ARCHS:
@@ -76,20 +77,29 @@ def init(arch: str = "cpu", default_fp: Any = None) -> Runtime:
         return rt
     import taichi as ti
 
-    if _current is not None:
+    previous = _current
+    if previous is not None:
         ti.reset()
-    ti_fp = ti.f64 if rt.fp == "f64" else ti.f32
-    ti_arch = ti.cpu if arch == "cpu" else ti.cuda
     try:
-        # ti.init prints "[Taichi] Starting on arch=..." unconditionally; keep stdout clean for
-        # commands that print JSON.
-        with contextlib.redirect_stdout(io.StringIO()):
-            ti.init(arch=ti_arch, default_fp=ti_fp, enable_fallback=False, log_level=ti.WARN)
+        _ti_init(ti, rt)
     except RuntimeError as exc:
+        # A failed switch (e.g. CUDA without a GPU) keeps the earlier choice, f32 included.
         _current = None
+        if previous is not None:
+            _ti_init(ti, previous)
+            _current = previous
         raise RuntimeError(f"mslam_fast.init: arch={arch!r} is not available here ({exc})") from exc
     _current = rt
     return rt
+
+
+def _ti_init(ti: Any, rt: Runtime) -> None:
+    # ti.init prints "[Taichi] Starting on arch=..." unconditionally; keep stdout clean for
+    # commands that print JSON.
+    ti_fp = ti.f64 if rt.fp == "f64" else ti.f32
+    ti_arch = ti.cpu if rt.arch == "cpu" else ti.cuda
+    with contextlib.redirect_stdout(io.StringIO()):
+        ti.init(arch=ti_arch, default_fp=ti_fp, enable_fallback=False, log_level=ti.WARN)
 
 
 def current() -> Runtime | None:

@@ -15,7 +15,7 @@ import taichi as ti
 
 from mslam_fast._kernels import sim3 as K
 from mslam_fast._runtime import ensure_init, flat, prepare, run_batch
-from mslam_ref.conventions import as_float_array
+from mslam_ref.conventions import SIM3_SIGMA_MAX, as_float_array, sim3_tangent
 
 # fmt: off
 __all__ = [  # in reading order
@@ -124,9 +124,17 @@ def _T(T: Any, name: str = "T") -> Array:
     return np.ascontiguousarray(arr, dtype=ensure_init().dtype)
 
 
+def _xi(xi: Any) -> Array:
+    """Validate a tangent like ``mslam_ref.sim3.exp`` (same error; in float32 the |sigma| cap
+    is 75, where e^sigma sigma^2 still fits), coerce to the runtime dtype."""
+    dtype = ensure_init().dtype
+    cap = SIM3_SIGMA_MAX if dtype == np.float64 else 75.0
+    return np.ascontiguousarray(sim3_tangent(xi, "xi", cap), dtype=dtype)
+
+
 def exp(xi: Any) -> Array:
     """Taichi twin of ``mslam_ref.sim3.exp``."""
-    return run_batch(_exp_k, [(prepare(xi, "xi", 7), 7)], (8,))
+    return run_batch(_exp_k, [(_xi(xi), 7)], (8,))
 
 
 def log(T: Any) -> Array:
@@ -173,7 +181,7 @@ def adjoint_inv_apply(T: Any, J: Any) -> Array:
 
 def retract(T: Any, xi: Any) -> Array:
     """Taichi twin of ``mslam_ref.sim3.retract``."""
-    return run_batch(_retract_k, [(_T(T), 8), (prepare(xi, "xi", 7), 7)], (8,))
+    return run_batch(_retract_k, [(_T(T), 8), (_xi(xi), 7)], (8,))
 
 
 def to_matrix(T: Any) -> Array:

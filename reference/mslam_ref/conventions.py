@@ -44,9 +44,13 @@ def as_float_array(x: Any, name: str, trailing: int | tuple[int, ...] | None = N
         float64 array (a copy only when conversion needs one).
 
     Raises:
-        ValueError: on a wrong trailing shape or a NaN/inf entry, naming ``name``.
+        ValueError: on a boolean or non-numeric input, a wrong trailing shape or a NaN/inf
+            entry, naming ``name``.
     """
-    arr = np.asarray(x, dtype=np.float64)
+    raw = np.asarray(x)
+    if raw.dtype == np.bool_:
+        raise ValueError(f"{name}: expected numbers, got a boolean array")
+    arr = np.asarray(raw, dtype=np.float64)
     if trailing is not None:
         tr = (trailing,) if isinstance(trailing, int) else tuple(trailing)
         if arr.ndim < len(tr) or arr.shape[arr.ndim - len(tr) :] != tr:
@@ -100,6 +104,26 @@ def as_flat_index(x: Any, name: str, n_max: int) -> IntArray:
     if len(a) and (a.min() < 0 or a.max() >= n_max):
         raise ValueError(f"{name}: indices must lie in [0, {n_max})")
     return a
+
+
+#: Largest |sigma| of a Sim(3) tangent (log-scale) accepted by ``exp``/``retract`` in float64:
+#: e^710 overflows and the W coefficients (e^sigma sigma^2) overflow near 697; a scale factor
+#: of e^690 is far beyond any meaningful update.
+SIM3_SIGMA_MAX = 690.0
+
+
+def sim3_tangent(xi: Any, name: str = "xi", sigma_max: float = SIM3_SIGMA_MAX) -> FloatArray:
+    """``as_float_array(xi, name, 7)`` plus ``|sigma| < sigma_max`` (sigma = index 6), so that
+    ``s = e^sigma`` stays finite and positive; the same error from the reference and fast."""
+    arr = as_float_array(xi, name, 7)
+    big = np.abs(arr[..., 6]) >= sigma_max
+    if np.any(big):
+        worst = float(arr[..., 6][big].flat[0])
+        raise ValueError(
+            f"{name}: |sigma| (index 6) must be below {sigma_max:g} (e^sigma would overflow or "
+            f"vanish), got {worst:g}"
+        )
+    return arr
 
 
 def pixel_to_lin(u: npt.ArrayLike, v: npt.ArrayLike, W: int) -> IntArray:

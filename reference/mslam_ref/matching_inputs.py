@@ -17,8 +17,18 @@ __all__ = ["check_match_inputs", "image_batch", "int_pixels"]
 
 
 def image_batch(x: Any, name: str, channels: int | None) -> tuple[FloatArray, bool]:
-    """Return ``x`` as (B, H, W, C) and whether it had a batch axis; H, W >= 3."""
+    """Return ``x`` as (B, H, W, C) and whether it had a batch axis; H, W >= 3, C >= 1.
+
+    Numbers only: a boolean array is an error; integer arrays become float64 here, once, for
+    the reference and the fast twin alike.
+    """
     arr = np.asarray(x)
+    if arr.dtype == np.bool_ or not np.issubdtype(arr.dtype, np.number):
+        raise ValueError(f"{name}: expected a numeric array, got dtype {arr.dtype}")
+    if np.issubdtype(arr.dtype, np.integer):
+        arr = arr.astype(np.float64)
+    if arr.ndim >= 1 and arr.shape[-1] == 0:
+        raise ValueError(f"{name}: zero-length last axis (no coordinates or descriptor entries)")
     if arr.ndim not in (3, 4) or (channels is not None and arr.shape[-1] != channels):
         want = f"(H, W, {channels or 'F'})"
         raise ValueError(f"{name}: expected shape {want} or (B, *{want}), got {arr.shape}")

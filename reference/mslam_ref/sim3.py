@@ -29,7 +29,13 @@ from __future__ import annotations
 import numpy as np
 
 from mslam_ref import so3
-from mslam_ref.conventions import EPS_EXP, SIM3_IDENTITY, FloatArray, as_float_array
+from mslam_ref.conventions import (
+    EPS_EXP,
+    SIM3_IDENTITY,
+    FloatArray,
+    as_float_array,
+    sim3_tangent,
+)
 
 # fmt: off
 __all__ = [  # in reading order
@@ -155,7 +161,8 @@ def exp(xi: FloatArray) -> FloatArray:
         q = Exp_SO3(phi),  s = e^sigma,  t = W(phi, sigma) tau
         W = A [phi]x + B [phi]x^2 + C I     (coefficients in ``_W_coefficients``)
 
-    Numerics: series for theta < 1e-6 and |sigma| < 1e-6 as lietorch.
+    Numerics: series for theta < 1e-6 and |sigma| < 1e-6 as lietorch; |sigma| >= 690 is a
+    ``ValueError`` (e^sigma overflows), as in the fast twin.
 
     Args:
         xi: (..., 7) tangent vector [tau (3), phi (3), sigma (1)].
@@ -163,7 +170,7 @@ def exp(xi: FloatArray) -> FloatArray:
     Returns:
         (..., 8) Sim(3) element.
     """
-    xi = as_float_array(xi, "xi", 7)
+    xi = sim3_tangent(xi, "xi")
     tau, phi, sigma = xi[..., :3], xi[..., 3:6], xi[..., 6]
     W = _W_matrix(phi, sigma)
     t = np.einsum("...ij,...j->...i", W, tau)

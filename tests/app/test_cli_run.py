@@ -36,7 +36,8 @@ def test_outputs_exist_and_are_well_formed(run_dir: Path):
     for name in OUTPUTS:
         assert (run_dir / name).is_file(), name
     assert not list(run_dir.glob(".*")), "temporary files left behind"
-    s = json.loads((run_dir / "summary.json").read_text())
+    assert not list(run_dir.parent.glob(".*")), "temporary folders left behind"
+    s = json.loads((run_dir / "summary.json").read_text(), parse_constant=_reject_nan)
     for key in (
         "frames",
         "keyframes",
@@ -64,6 +65,10 @@ def test_outputs_exist_and_are_well_formed(run_dir: Path):
     # the synthetic room is about 4 m x 3 m: points stay within a few metres of the cameras
     assert np.percentile(np.linalg.norm(xyz - poses[:, :3].mean(0), axis=1), 95) < 5.0
     assert (run_dir / "trajectory.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def _reject_nan(token: str) -> None:
+    raise ValueError(f"summary.json: non-standard JSON constant {token}")
 
 
 def _no_outputs(out: Path) -> bool:
@@ -139,30 +144,43 @@ def test_ctrl_c_writes_what_exists(tmp_path, monkeypatch, fast64):
     out = tmp_path / "out"
     rc = main(["run", "synthetic:loop:12:64x48", "--out", str(out), "--kernels", "fast", "--quiet"])
     assert rc == 130
-    s = json.loads((out / "summary.json").read_text())
+    s = json.loads((out / "summary.json").read_text(), parse_constant=_reject_nan)
     assert s["interrupted"] and s["frames"] == 5
     assert len(read_tum(out / "trajectory.txt")[0]) == 5
 
 
-def test_unreadable_frames_are_skipped_and_counted(tmp_path, monkeypatch, fast64):
+def _break_frames(monkeypatch, bad):
     from mslam.datasets.synthetic import SyntheticSequence
 
     original = SyntheticSequence._load
 
     def broken(self, i):
-        if i in (3, 7):
+        if i in bad:
             raise OSError(f"frame {i}: corrupt file")
         return original(self, i)
 
     monkeypatch.setattr(SyntheticSequence, "_load", broken)
+
+
+def test_unreadable_frame_is_exit_2_without_outputs(tmp_path, monkeypatch, capsys):
+    _break_frames(monkeypatch, (3,))
     out = tmp_path / "out"
+    rc = main(["run", "synthetic:loop:6:32x24", "--out", str(out), "--kernels", "ref", "--quiet"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "cannot read frame 3" in err and err.count("\n") == 1
+    assert not out.exists()
+
+
+def test_unreadable_frames_are_skipped_and_counted(tmp_path, monkeypatch, fast64):
+    _break_frames(monkeypatch, (3, 7))
+    out = tmp_path / "out"
+    argv = ["run", "synthetic:loop:12:64x48", "--out", str(out), "--kernels", "fast", "--quiet"]
     with pytest.warns(RuntimeWarning, match="skipping frame"):
-        rc = main(
-            ["run", "synthetic:loop:12:64x48", "--out", str(out), "--kernels", "fast", "--quiet"]
-        )
+        rc = main([*argv, "--skip-bad-frames"])
     assert rc == 0
-    s = json.loads((out / "summary.json").read_text())
+    s = json.loads((out / "summary.json").read_text(), parse_constant=_reject_nan)
     assert s["skipped_frames"] == 2 and s["frames"] == 10
+    assert [k["frame"] for k in s["skipped"]] == [3, 7]
 
 
 def test_config_inherit_and_overrides(tmp_path):
@@ -206,6 +224,6 @@ def test_rgbd_source_defaults_to_the_rgbd_config(tmp_path, fast64, config, mode)
     out = tmp_path / "out"
     args = ["run", str(seq_dir), "--out", str(out), "--kernels", "fast", "--quiet"]
     assert main(args + (["--config", config] if config else [])) == 0
-    s = json.loads((out / "summary.json").read_text())
+    s = json.loads((out / "summary.json").read_text(), parse_constant=_reject_nan)
     assert s["prior"] == "rgbd"
     assert s["config"]["tracking"]["filtering_mode"] == mode

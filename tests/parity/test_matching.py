@@ -148,7 +148,7 @@ def test_match_parity(fast: str, name: str, radius: int) -> None:
     _assert_share(v_f, v_r, fast, "match valid")
 
 
-@settings(max_examples=6, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(suppress_health_check=[*settings().suppress_health_check, HealthCheck.function_scoped_fixture])  # fmt: skip
 @given(seed=st.integers(0, 2**16), offset=st.integers(-4, 4))
 def test_match_parity_with_idx_init(fast: str, seed: int, offset: int) -> None:
     from mslam_fast import matching as fm

@@ -38,7 +38,7 @@ def _close(a, b, fp, scale=None):
     np.testing.assert_allclose(b, a, rtol=t["rtol"], atol=atol)
 
 
-@settings(max_examples=10, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(suppress_health_check=[*settings().suppress_health_check, HealthCheck.function_scoped_fixture])  # fmt: skip
 @given(seed=st.integers(0, 2**16), calibrated=st.booleans())
 def test_linearize_parity(fast: str, seed: int, calibrated: bool) -> None:
     from mslam_fast import tracking as fst

@@ -15,7 +15,7 @@ class UserError(Exception):
 
 def print_json(obj: dict[str, Any]) -> None:
     """Print a JSON object the way every sub-command reports results."""
-    print(json.dumps(obj, indent=2, sort_keys=False))
+    print(json.dumps(obj, indent=2, sort_keys=False, allow_nan=False))
 
 
 def write_atomic(path: str | Path, data: bytes | str) -> None:

@@ -37,7 +37,8 @@ def register(subparsers: Any) -> None:
     p.add_argument("problem", type=Path, help="BAL problem file (problem-*.txt)")
     p.add_argument("--kernels", choices=("ref", "fast"), default="ref")
     p.add_argument("--iterations", type=int, default=50, help="LM iteration cap (default 50)")
-    p.add_argument("--out", type=Path, default=None, help="write the optimised problem (BAL)")
+    p.add_argument("--out", type=Path, default=None, help="write the optimised problem (BAL file)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     p.add_argument("--damping", choices=("jacobi", "identity"), default="jacobi",
                    help="jacobi: Ceres' Jacobi scaling (default); identity: g2o's lambda I")  # fmt: skip
     p.add_argument("--function-tolerance", type=float, default=1e-6,
@@ -67,6 +68,10 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--iterations must be >= 0, got {args.iterations}")
     if not args.problem.is_file():
         raise FileNotFoundError(f"{args.problem}: no such file")
+    if args.out is not None:
+        from mslam.commands.outdir import check_target
+
+        check_target(args.out, args.overwrite, kind="file")
     problem = io.read_bal(args.problem)
     kernels = _kernel_set(args.kernels)
     cfg = lm.LMConfig(
@@ -78,7 +83,9 @@ def run(args: argparse.Namespace) -> int:
     res = lm.optimize(problem, cfg, kernels)
     seconds = time.perf_counter() - t0
     if args.out is not None:
-        io.write_bal(res.problem, args.out)
+        from mslam.commands.outdir import write_file_atomic
+
+        write_file_atomic(args.out, io.format_bal(res.problem), args.overwrite)
     print_json(
         {
             "problem": str(args.problem),

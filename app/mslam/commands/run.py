@@ -9,7 +9,11 @@
 SOURCE: nothing (the built-in synthetic ``loop``), ``synthetic:NAME[:FRAMES[:WxH]]``, a
 TUM-layout folder, a 7-Scenes folder, an image folder or a video file. Everything that can be
 checked is checked before the first frame (config keys, calibration, prior); a bad input is
-one line on stderr, exit code 2, and no output file. Ctrl-C writes what exists and exits 130.
+one line on stderr, exit code 2, and no output file. The output set is written into a temporary
+folder beside ``--out`` and moved into place in one rename (``mslam.commands.outdir``); an
+existing non-empty ``--out`` is refused unless ``--overwrite``. Ctrl-C stops at the next frame
+boundary, writes a complete set marked ``"interrupted": true`` and exits 130; a second Ctrl-C
+stops at once and leaves no output.
 """
 
 from __future__ import annotations
@@ -79,19 +83,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="also run OpenCV RGB-D odometry on the same frames (needs depth)",
     )
     p.add_argument("--quiet", action="store_true", help="no progress bar and no summary")
+    p.add_argument("--overwrite", action="store_true", help="replace a non-empty output folder")
+    p.add_argument("--skip-bad-frames", action="store_true",
+                   help="skip unreadable frames (listed in summary.json) instead of exit 2")  # fmt: skip
     p.set_defaults(func=run)
-
-
-def _check_out(out: Path) -> None:
-    if out.exists() and not out.is_dir():
-        raise UserError(f"--out {out}: exists and is not a folder")
-    parent = out if out.exists() else out.parent
-    while not parent.exists():
-        parent = parent.parent
-    import os
-
-    if not os.access(parent, os.W_OK):
-        raise UserError(f"--out {out}: not writable")
 
 
 #: Longest image side the RGB-D prior runs at usable speed on a CPU (its feature matching, PnP
@@ -114,12 +109,14 @@ def _check_resolution(source, cfg) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Handler of ``mslam run``; returns the exit code."""
+    from mslam.commands.outdir import check_target, staged_folder
     from mslam.config import config_to_dict, load_config
     from mslam.kernels import load_kernels
     from mslam.system import open_source, run_slam, write_outputs
 
-    out = Path(args.out)
-    _check_out(out)
+    out = check_target(args.out, args.overwrite)
+    if args.source and Path(args.source).resolve().is_relative_to(out.resolve()):
+        raise UserError(f"--out {out}: contains SOURCE {args.source}; choose another folder")
     if args.max_frames is not None and args.max_frames < 1:
         raise UserError(f"--max-frames: must be >= 1, got {args.max_frames}")
     cfg = load_config(args.config, args.overrides)
@@ -135,18 +132,19 @@ def run(args: argparse.Namespace) -> int:
 
         cfg = replace(cfg, use_calib=True)  # upstream: --calib forces use_calib
     kernels = load_kernels(args.kernels)
-    baseline = None
-    if args.baseline:
-        if not source.sequence.has_depth:
-            raise UserError("--baseline: the RGB-D odometry baseline needs depth images")
-    system, meta = run_slam(source, cfg, kernels, progress=not args.quiet)
+    if args.baseline and not source.sequence.has_depth:
+        raise UserError(f"--baseline: {source.name} has no depth images (the RGB-D odometry "
+                        "baseline needs them)")  # fmt: skip
+    system, meta = run_slam(
+        source, cfg, kernels, progress=not args.quiet, skip_bad_frames=args.skip_bad_frames
+    )
     if args.baseline and not meta["interrupted"]:
         from mslam.baselines import rgbd_odometry_ate
 
-        baseline = rgbd_odometry_ate(source.sequence)
-        meta["baseline"] = baseline
+        meta["baseline"] = rgbd_odometry_ate(source.sequence)
     meta["config"] = config_to_dict(cfg)
-    summary = write_outputs(out, system, source.sequence, meta)
+    with staged_folder(out, args.overwrite) as tmp:
+        summary = write_outputs(tmp, system, source.sequence, meta)
     if not args.quiet:
         _print_summary(summary, out)
     return 130 if meta["interrupted"] else 0
@@ -183,6 +181,8 @@ def _print_summary(s: dict, out: Path) -> None:
             f"  RGB-D odometry baseline ATE {s['baseline']['ate_rmse']:.4f} m "
             "(baseline_odometry.txt)"
         )
+    if s.get("evaluation_error"):
+        lines.append(f"  {s['evaluation_error']}")
     for w in s["warnings"]:
         lines.append(f"  WARNING: {w}")
     if not s["warnings"]:

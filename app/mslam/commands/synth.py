@@ -4,7 +4,8 @@ Writes ``rgb/*.png``, ``depth/*.png`` (uint16, 5000 units per metre), ``rgb.txt`
 ``depth.txt``, ``associations.txt``, ``groundtruth.txt`` (``timestamp tx ty tz qx qy qz qw``,
 camera-to-world), ``calib.yaml`` (``width``, ``height``, ``calibration: [fx, fy, cx, cy]``,
 ``depth_scale``) and ``synth.json`` (name, seed, size, frames, jump indices). All or nothing:
-the folder appears only when every file was written.
+the whole set is written into a temporary folder beside ``--out`` and moved into place in one
+rename (``mslam.commands.outdir``); a non-empty ``--out`` is refused unless ``--overwrite``.
 """
 
 from __future__ import annotations
@@ -41,9 +42,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Render and write the sequence; prints a JSON summary."""
+    from mslam.commands.outdir import check_target, staged_folder
     from mslam.datasets.synthetic import make_sequence
     from mslam.datasets.tum import write_tum_sequence
-    from mslam_ref.synthetic import PATHS, jump_indices
+    from mslam_ref.synthetic import PATHS, check_synthetic_size, jump_indices
 
     name = args.name.removeprefix("synthetic:")
     if name not in PATHS:
@@ -52,11 +54,9 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--frames must be >= 2, got {args.frames}")
     if not (8 <= args.width <= 4096 and 8 <= args.height <= 4096):
         raise UserError(f"--width/--height must be in [8, 4096], got {args.width}x{args.height}")
-    out: Path = args.out
-    if out.exists() and (not out.is_dir() or (any(out.iterdir()) and not args.overwrite)):
-        raise UserError(f"{out}: exists and is not an empty folder (use --overwrite)")
+    check_synthetic_size(args.frames, args.width, args.height, "--frames/--width/--height")
+    out = check_target(args.out, args.overwrite)
     seq = make_sequence(name, args.frames, args.width, args.height, args.seed)
-    write_tum_sequence(seq, out, depth_scale=5000.0, overwrite=args.overwrite)
     info = {
         "name": seq.name,
         "frames": len(seq),
@@ -69,6 +69,8 @@ def run(args: argparse.Namespace) -> int:
     }
     if name == "jump":
         info["jump_indices"] = list(jump_indices(len(seq)))
-    write_atomic(out / "synth.json", json.dumps(info, indent=2) + "\n")
+    with staged_folder(out, args.overwrite) as tmp:
+        write_tum_sequence(seq, tmp, depth_scale=5000.0, overwrite=True)
+        write_atomic(tmp / "synth.json", json.dumps(info, indent=2, allow_nan=False) + "\n")
     print_json(info)
     return 0

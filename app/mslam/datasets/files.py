@@ -25,7 +25,11 @@ from mslam.datasets.readers import Calibration, read_calibration, read_depth, re
 from mslam_ref.conventions import FloatArray
 from mslam_ref.pointmap import scale_intrinsics
 
-__all__ = ["FileSequence", "apply_calibration"]
+__all__ = ["CalibrationMismatch", "FileSequence", "apply_calibration"]
+
+
+class CalibrationMismatch(ValueError):
+    """The images and the calibration file disagree on the image size (not a corrupt frame)."""
 
 
 def apply_calibration(calib: Calibration | str | Path | None) -> Calibration | None:
@@ -105,7 +109,7 @@ class FileSequence(FrameSequence):
         """Undistort / resize one frame and wrap it in a :class:`Frame`."""
         src = self.rgb_paths[i] if i < len(self.rgb_paths) else Path(self.name)
         if self.calib is not None and rgb.shape[:2] != (self.calib.height, self.calib.width):
-            raise ValueError(
+            raise CalibrationMismatch(
                 f"{src}: image size {rgb.shape[1]}x{rgb.shape[0]} does not match the calibration "
                 f"{self.calib.width}x{self.calib.height}"
             )

@@ -85,8 +85,13 @@ def read_calibration(path: str | Path) -> Calibration:
         raise FileNotFoundError(f"{path}: calibration file not found")
     try:
         data = yaml.safe_load(path.read_text())
-    except (yaml.YAMLError, UnicodeDecodeError) as exc:
-        raise ValueError(f"{path}: not a valid YAML file ({exc})") from None
+    except UnicodeDecodeError:
+        raise ValueError(f"{path}: not a text (YAML) file") from None
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f" line {mark.line + 1}:" if mark is not None else ""
+        problem = " ".join(str(getattr(exc, "problem", None) or "").split())
+        raise ValueError(f"{path}:{where} not a valid YAML file ({problem or 'syntax'})") from None
     if not isinstance(data, dict):
         raise ValueError(f"{path}: expected a YAML mapping with width, height, calibration")
     missing = [k for k in ("width", "height", "calibration") if k not in data]

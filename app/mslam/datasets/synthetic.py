@@ -25,7 +25,15 @@ import numpy as np
 
 from mslam.datasets.frame import Frame, FrameSequence
 from mslam_ref.conventions import FloatArray
-from mslam_ref.synthetic import PATHS, Scene, camera_path, intrinsics, make_scene, render
+from mslam_ref.synthetic import (
+    PATHS,
+    Scene,
+    camera_path,
+    check_synthetic_size,
+    intrinsics,
+    make_scene,
+    render,
+)
 
 __all__ = ["DEFAULT_SYNTHETIC", "PATHS", "SyntheticSequence", "make_sequence", "parse_synthetic"]
 
@@ -54,6 +62,7 @@ def parse_synthetic(source: str) -> tuple[str, int, int, int]:
         raise ValueError(f"SOURCE {source!r}: expected synthetic:NAME[:FRAMES[:WxH]]") from None
     if n < 2 or w < 16 or h < 16:
         raise ValueError(f"SOURCE {source!r}: need >= 2 frames and >= 16x16 pixels")
+    check_synthetic_size(n, w, h, f"SOURCE {source!r}")
     return name, n, w, h
 
 
@@ -123,8 +132,8 @@ def make_sequence(
 
     Args:
         name: camera path, one of :data:`PATHS` (``loop``, ``jump``, ``rotation``, ``forward``).
-        n_frames: number of frames (>= 2).
-        width, height: image size in pixels.
+        n_frames: number of frames (2 to ``mslam_ref.synthetic.MAX_FRAMES``).
+        width, height: image size in pixels (at most ``mslam_ref.synthetic.MAX_PIXELS``).
         seed: seed of the scene and of the path's small variations (deterministic).
         fov_deg: horizontal field of view.
 
@@ -133,6 +142,7 @@ def make_sequence(
     """
     if name.startswith("synthetic:"):
         name = name.split(":", 1)[1]
+    check_synthetic_size(n_frames, width, height, f"synthetic:{name}")
     T_WC = camera_path(name, n_frames, seed)
     K = intrinsics(width, height, fov_deg)
     return SyntheticSequence(name, make_scene(seed), T_WC, K, width, height, seed)

@@ -56,6 +56,10 @@ class PairPrediction:
     Q_ji: FloatArray
 
     def __post_init__(self) -> None:
+        for f in fields(self):
+            dtype = np.asarray(getattr(self, f.name)).dtype
+            if dtype == np.bool_ or not np.issubdtype(dtype, np.number):
+                raise ValueError(f"{f.name}: expected a numeric array, got dtype {dtype}")
         for side in ("ii", "ji"):
             X = getattr(self, f"X_{side}")
             H, W = X.shape[:2]
@@ -65,8 +69,8 @@ class PairPrediction:
                 if arr.shape != shape:
                     raise ValueError(f"{key}_{side}: expected shape {shape}, got {arr.shape}")
             D = getattr(self, f"D_{side}")
-            if D.ndim != 3 or D.shape[:2] != (H, W):
-                raise ValueError(f"D_{side}: expected shape ({H}, {W}, F), got {D.shape}")
+            if D.ndim != 3 or D.shape[:2] != (H, W) or D.shape[2] == 0:
+                raise ValueError(f"D_{side}: expected shape ({H}, {W}, F), F >= 1, got {D.shape}")
 
 
 @runtime_checkable

@@ -39,6 +39,7 @@ class DescriptorConfig:
         blur_sigma: Gaussian blur of the image before sampling (pixels).
         eps: added to the patch standard deviation (flat patches stay finite).
         seed: seed of the projection matrix (the same for every image).
+        cache_bytes: bound of the priors' per-frame cache (``mslam.priors.cache``).
     """
 
     dim: int = 24
@@ -47,6 +48,7 @@ class DescriptorConfig:
     blur_sigma: float = 0.5
     eps: float = 0.02
     seed: int = 24
+    cache_bytes: int = 128 * 2**20
 
 
 def _projection(cfg: DescriptorConfig) -> FloatArray:

@@ -33,7 +33,6 @@ Public names, in reading order:
 
 from __future__ import annotations
 
-from collections import OrderedDict
 from dataclasses import dataclass, field
 
 import cv2
@@ -179,16 +178,14 @@ class RGBDPrior:
         self.image_size = (int(image_size[0]), int(image_size[1]))
         self.cfg = cfg
         self.last_inliers = 0
-        self._cache: OrderedDict[tuple, object] = OrderedDict()
+        from mslam.priors.cache import ByteLRU
+
+        self._cache = ByteLRU(cfg.desc.cache_bytes)  # bounded in bytes, not entries
 
     def _cached(self, kind: str, frame: Frame, fn):
         """Per-frame results (features, descriptors) keyed by index and image content."""
         key = (kind, int(frame.index), frame.rgb.shape, hash(frame.rgb.tobytes()))
-        if key not in self._cache:
-            self._cache[key] = fn(frame)
-            if len(self._cache) > 64:
-                self._cache.popitem(last=False)
-        return self._cache[key]
+        return self._cache.get(key, lambda: fn(frame))
 
     def K_for(self, frame: Frame) -> FloatArray:
         """Intrinsics at the frame's resolution."""

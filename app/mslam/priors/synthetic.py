@@ -32,7 +32,6 @@ Public names, in reading order:
 
 from __future__ import annotations
 
-from collections import OrderedDict
 from dataclasses import dataclass, field
 
 import cv2
@@ -145,17 +144,15 @@ class SyntheticPrior:
         self.K = np.asarray(sequence.K, dtype=np.float64)
         self.size = (getattr(sequence, "width", None), getattr(sequence, "height", None))
         self.cfg = cfg
-        self._desc_cache: OrderedDict[tuple, tuple[FloatArray, FloatArray]] = OrderedDict()
+        from mslam.priors.cache import ByteLRU
+
+        self._desc_cache = ByteLRU(cfg.desc.cache_bytes)  # bounded in bytes, not entries
 
     # -- helpers -----------------------------------------------------------------------------
     def _descriptors(self, frame: Frame) -> tuple[FloatArray, FloatArray]:
         """Patch descriptors of a frame, cached (they depend on the image only)."""
         key = (int(frame.index), frame.rgb.shape, hash(np.ascontiguousarray(frame.rgb).tobytes()))
-        if key not in self._desc_cache:
-            self._desc_cache[key] = patch_descriptors(frame.rgb, self.cfg.desc)
-            if len(self._desc_cache) > 64:
-                self._desc_cache.popitem(last=False)
-        return self._desc_cache[key]
+        return self._desc_cache.get(key, lambda: patch_descriptors(frame.rgb, self.cfg.desc))
 
     def _K_for(self, frame: Frame) -> FloatArray:
         H, W = frame.shape

@@ -30,9 +30,13 @@ Public names, in reading order:
 
 from __future__ import annotations
 
+import contextlib
+import signal
 import sys
+import threading
 import time
 import warnings
+from collections.abc import Iterator
 from typing import Any
 
 import cv2
@@ -61,14 +65,18 @@ def run_slam(
     kernels: KernelSet,
     progress: bool = False,
     system: SlamSystem | None = None,
+    skip_bad_frames: bool = False,
 ) -> tuple[SlamSystem, dict[str, Any]]:
     """Run the SLAM loop over every frame of ``source``.
 
     Upstream: main.py ``__main__`` (the frame loop) with ``single_thread: True``.
 
-    Reliability: a frame that cannot be read (``OSError``, ``ValueError``, ``cv2.error``) is
-    skipped with a warning and counted; a sequence whose tracking never recovers simply ends
-    with what it had; Ctrl-C stops the loop and returns what exists (``meta["interrupted"]``).
+    Reliability: a frame that cannot be read (``OSError``, ``ValueError``, ``cv2.error``) is a
+    ``ValueError`` naming the frame, or with ``skip_bad_frames`` is skipped with a warning and
+    counted (``stats.skipped_frames``, ``meta["skipped"]``); a sequence whose tracking never
+    recovers simply ends with what it had. Ctrl-C (SIGINT, in the main thread) stops at the
+    next frame boundary and returns what exists (``meta["interrupted"]``); a second Ctrl-C
+    raises ``KeyboardInterrupt`` at once.
 
     Args:
         source: from :func:`open_source`.
@@ -76,6 +84,7 @@ def run_slam(
         kernels: the kernel set.
         progress: show a tqdm progress bar on stderr.
         system: continue an existing system (default: a new one).
+        skip_bad_frames: skip unreadable frames instead of raising.
 
     Returns:
         the system (keyframes, graph, per-frame poses, stats) and ``meta`` (source, prior,
@@ -92,29 +101,36 @@ def run_slam(
         bar = tqdm(total=n, file=sys.stderr, unit="frame", dynamic_ncols=True, leave=False)
     interrupted = False
     shape = None
+    skipped: list[dict[str, Any]] = []
     t0 = time.perf_counter()
     try:
-        for i in range(n):
-            try:
-                frame = seq[i]
-                if shape is None:
-                    shape = frame.shape
-                elif frame.shape != shape:
-                    raise ValueError(f"size {frame.shape} differs from the first frame's {shape}")
-            except (OSError, ValueError, cv2.error) as exc:
-                system.stats.skipped_frames += 1
-                warnings.warn(
-                    f"{source.name}: skipping frame {i}: {exc}", RuntimeWarning, stacklevel=2
-                )
+        with _sigint_at_frame_boundary() as stop:
+            for i in range(n):
+                if stop.is_set():
+                    interrupted = True
+                    break
+                try:
+                    frame = seq[i]
+                    if shape is None:
+                        shape = frame.shape
+                    elif frame.shape != shape:
+                        raise ValueError(f"size {frame.shape} differs from frame 0's {shape}")
+                except (OSError, ValueError, cv2.error) as exc:
+                    if not skip_bad_frames:
+                        raise ValueError(
+                            f"{source.name}: cannot read frame {i}: {exc} "
+                            "(--skip-bad-frames skips such frames)"
+                        ) from None
+                    _skip(system, skipped, source.name, i, exc)
+                else:
+                    status = system.process(frame)
+                    if bar is not None:
+                        bar.set_postfix(kf=len(system.keyframes), mode=system.mode.name,
+                                        last=status, refresh=False)  # fmt: skip
                 if bar is not None:
                     bar.update(1)
-                continue
-            status = system.process(frame)
-            if bar is not None:
-                bar.set_postfix(
-                    kf=len(system.keyframes), mode=system.mode.name, last=status, refresh=False
-                )
-                bar.update(1)
+    except _HardStop:
+        raise
     except KeyboardInterrupt:
         interrupted = True
     finally:
@@ -127,5 +143,37 @@ def run_slam(
         "prior": source.prior_name,
         "seconds": seconds,
         "interrupted": interrupted,
+        "skipped": skipped,
     }
     return system, meta
+
+
+def _skip(system: SlamSystem, skipped: list, name: str, i: int, exc: BaseException) -> None:
+    system.stats.skipped_frames += 1
+    skipped.append({"frame": i, "reason": str(exc)})
+    warnings.warn(f"{name}: skipping frame {i}: {exc}", RuntimeWarning, stacklevel=3)
+
+
+class _HardStop(KeyboardInterrupt):
+    """A second Ctrl-C: stop now, write nothing."""
+
+
+@contextlib.contextmanager
+def _sigint_at_frame_boundary() -> Iterator[threading.Event]:
+    """First SIGINT sets the yielded event (checked between frames); a second one raises
+    ``KeyboardInterrupt`` (no output). Outside the main thread the handler cannot be installed."""
+    stop = threading.Event()
+    if threading.current_thread() is not threading.main_thread():
+        yield stop
+        return
+
+    def handler(signum: int, frame: Any) -> None:
+        if stop.is_set():
+            raise _HardStop
+        stop.set()
+
+    previous = signal.signal(signal.SIGINT, handler)
+    try:
+        yield stop
+    finally:
+        signal.signal(signal.SIGINT, previous)

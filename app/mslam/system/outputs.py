@@ -102,12 +102,19 @@ def evaluate_run(system: Any, sequence: Any) -> dict[str, Any]:
     has[idx[idx < len(gt)]] = True
     steps = np.linalg.norm(np.diff(gt[:, :3], axis=0), axis=1)
     out["path_length"] = float(steps[has[:-1] & has[1:]].sum())
-    res = evaluate.ate(ts, T, gt_ts, gt, align="sim3")
+    try:
+        res = evaluate.ate(ts, T, gt_ts, gt, align="sim3")
+    except ValueError as exc:  # e.g. a pure rotation: reported, never fatal to the outputs
+        out["evaluation_error"] = f"ATE not computed: {exc}"
+        return out
     out["ate"] = res.to_dict()
     out["ate_percent_of_path"] = 100.0 * res.rmse / max(out["path_length"], 1e-12)
     _, kts, kT = system.keyframe_poses()
     if len(kT) >= 3:
-        out["ate_keyframes"] = evaluate.ate(kts, kT, gt_ts, gt, align="sim3").to_dict()
+        try:
+            out["ate_keyframes"] = evaluate.ate(kts, kT, gt_ts, gt, align="sim3").to_dict()
+        except ValueError as exc:
+            out["evaluation_error"] = f"keyframe ATE not computed: {exc}"
     out["_ate_result"] = res
     out["_gt"] = (gt_ts, gt[:, :3])
     out["_gt_T"] = gt
@@ -158,6 +165,10 @@ def summary_dict(system: Any, meta: dict[str, Any], ev: dict[str, Any]) -> dict[
         out["ate_percent_of_path"] = ev["ate_percent_of_path"]
         if "ate_keyframes" in ev:
             out["ate_keyframes"] = ev["ate_keyframes"]
+    if "evaluation_error" in ev:
+        out["evaluation_error"] = ev["evaluation_error"]
+    if meta.get("skipped"):
+        out["skipped"] = meta["skipped"]
     for key in ("baseline", "config"):
         if key in meta:
             out[key] = {k: v for k, v in meta[key].items() if not k.startswith("_")}
@@ -301,7 +312,7 @@ def write_outputs(
     summary = summary_dict(system, meta, ev)
     base = (meta.get("baseline") or {}).get("_result")
     png = plot_trajectory(system, ev, title=str(meta.get("source", "")), baseline=base)
-    text = json.dumps(summary, indent=2, default=_json_default) + "\n"
+    text = json.dumps(_finite(summary), indent=2, default=_json_default, allow_nan=False) + "\n"
     out_dir.mkdir(parents=True, exist_ok=True)
     mio.write_tum(out_dir / "trajectory.txt", ts, T.reshape(-1, 8))
     mio.write_tum(out_dir / "keyframes.txt", kts, kT.reshape(-1, 8))
@@ -315,6 +326,17 @@ def write_outputs(
     write_atomic(out_dir / "trajectory.png", png)
     write_atomic(out_dir / "summary.json", text)
     return summary
+
+
+def _finite(o: Any) -> Any:
+    """``o`` with every non-finite float replaced by None (strict JSON: no NaN, no Infinity)."""
+    if isinstance(o, dict):
+        return {k: _finite(v) for k, v in o.items()}
+    if isinstance(o, list | tuple):
+        return [_finite(v) for v in o]
+    if isinstance(o, float | np.floating) and not np.isfinite(o):
+        return None
+    return o
 
 
 def _json_default(o: Any) -> Any:

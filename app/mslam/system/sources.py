@@ -133,11 +133,17 @@ def open_source(
 
 
 def _first_readable(seq: Any, name: str, tries: int = 10) -> Frame:
-    """The first frame that loads (the size and calibration checks need one)."""
-    last = None
+    """The first frame that loads (the size and calibration checks need one); a calibration
+    that does not fit the images is reported as such, not as unreadable frames."""
+    from mslam.datasets.files import CalibrationMismatch
+
+    first = None
     for i in range(min(tries, len(seq))):
         try:
             return seq[i]
+        except CalibrationMismatch as exc:
+            raise ValueError(f"--calib: {exc}") from None
         except (OSError, ValueError, cv2.error) as exc:
-            last = exc
-    raise ValueError(f"{name}: cannot read any of the first {min(tries, len(seq))} frames ({last})")
+            first = first or exc
+    n = min(tries, len(seq))
+    raise ValueError(f"{name}: none of the first {n} frames can be read (frame 0: {first})")

@@ -141,6 +141,22 @@ def robust_chi2(problem: Any, kernels: Any, cams: FloatArray, points: FloatArray
     return float(np.sum(problem.robust(s)[0]))
 
 
+def _check_finite_start(problem: Any, cams: FloatArray, points: FloatArray) -> None:
+    """``ValueError`` naming the first observation whose residual is not finite at the start
+    (a point at a camera centre, depth 0). Evaluated with the reference kernels, so both
+    kernel sets give the same error before any of their kernels runs."""
+    with np.errstate(all="ignore"):
+        r = problem.residuals(_default_kernels(), cams, points)
+    bad = np.flatnonzero(~np.all(np.isfinite(r), axis=-1))
+    if bad.size:
+        o = int(bad[0])
+        raise ValueError(
+            f"observation {o} (camera {int(problem.obs_cam[o])}, point {int(problem.obs_pt[o])}): "
+            f"residual is not finite at the start (the point lies at the camera centre, depth "
+            f"0); {bad.size} such observation(s)"
+        )
+
+
 def solve_damped(
     blocks: tuple[FloatArray, ...], lam: float, structure: Any, kernels: Any = None
 ) -> tuple[FloatArray, FloatArray] | None:
@@ -262,12 +278,17 @@ def optimize(
 
     Returns:
         An :class:`LMResult`; ``final_cost <= initial_cost`` always holds.
+
+    Raises:
+        ValueError: when a residual is not finite at the start (same message for both kernel
+            sets); a step to a non-finite cost is rejected like any uphill step.
     """
     cfg = config if config is not None else LMConfig()
     k = kernels if kernels is not None else _default_kernels()
     clock = clock if clock is not None else StageClock(PROFILE_KEYS)
     with clock("initialize"):
         cams, points = problem.params()
+        _check_finite_start(problem, cams, points)
     with clock("build_structure"):
         st = _schur.build_structure(
             problem.obs_cam, problem.obs_pt, len(cams), len(points), problem.cam_dof
