@@ -3,11 +3,17 @@
 ``SlamSystem.process(frame)`` is upstream's main-loop body for one frame, single process:
 
 * **INIT** — ``prior.mono(frame)`` gives the first keyframe (pose = identity); mode → TRACKING.
+  A prior with ``needs_parallax`` (the two-view prior: one image has no depth) instead keeps
+  the first frame as a candidate and fixes it as keyframe 0, with ``X_ii`` of
+  ``prior.pair(candidate, frame)``, at the first frame whose pair is not degenerate
+  (``prior.last_status == "ok"``); frames before it have no pose.
 * **TRACKING** — ``prior.pair(frame, last keyframe)``, matching (initialised with the previous
   frame's ``idx_f2k``), the masks of spec §5.1, the IRLS Gauss–Newton on ``T_CkCf``
   (constant-position initial guess), fusion of the keyframe's pointmap (``X_kk = T_CkCf · X_kf``,
   paper Eq. 8), and the new-keyframe test (spec §5.5). Too few matches or a Cholesky failure
-  switch to RELOC. A new keyframe triggers graph construction and the global backend
+  switch to RELOC. When the pair with the last keyframe is degenerate (a prior that reports
+  ``last_status``, e.g. too little parallax just after a new keyframe), the frame is tracked
+  against the keyframe before it instead, and never becomes a keyframe itself. A new keyframe triggers graph construction and the global backend
   **synchronously** (upstream's ``single_thread`` mode).
 * **RELOC** — ``mslam_ref.reloc.relocalise`` on the frame; on success mode → TRACKING.
 
@@ -117,6 +123,7 @@ class SlamSystem:
         self.poses: list[FramePose] = []
         self.stats = RunStats()
         self.backend_history: list[dict[str, Any]] = []
+        self._init_candidate: Frame | None = None
 
     # -- bookkeeping -----------------------------------------------------------------------
     @contextmanager
@@ -170,6 +177,8 @@ class SlamSystem:
     def process(self, frame: Frame) -> str:
         """Process one frame (spec §1.4 step 4-5); returns its status."""
         self.stats.frames += 1
+        if self.mode == Mode.INIT and getattr(self.prior, "needs_parallax", False):
+            return self._init_with_parallax(frame)
         if self.mode == Mode.INIT:
             with self.timer("prior"):
                 X, C = self.prior.mono(frame)
@@ -203,16 +212,61 @@ class SlamSystem:
             self.mode = Mode.RELOC
         return status
 
+    def _init_with_parallax(self, frame: Frame) -> str:
+        """INIT for priors without single-image depth: wait for a non-degenerate first pair."""
+        cand = self._init_candidate
+        if cand is None:
+            self._init_candidate = frame
+            self._record(frame, -1, None, "lost")
+            return "lost"
+        with self.timer("prior"):
+            self.prior.pair(frame, cand)  # the direction tracking uses must be usable too
+            status = getattr(self.prior, "last_status", "ok")
+            p = self.prior.pair(cand, frame) if status == "ok" else None
+        if status == "ok":
+            status = getattr(self.prior, "last_status", "ok")
+        if status != "ok":
+            if status == "few_inliers":  # too far apart to match: start again from here
+                self.poses = [q for q in self.poses if q.index != cand.index]
+                self._record(cand, -1, None, "lost")
+                self._init_candidate = frame
+            self.stats.lost_frames += 1
+            self._record(frame, -1, None, "lost")
+            return "lost"
+        self.poses = [q for q in self.poses if q.index != cand.index]  # the candidate gets a pose
+        k = self.new_keyframe(cand, sim3.identity(), p.X_ii, p.C_ii, p.D_ii, p.Q_ii)
+        self.retrieval.insert(self.keyframes[k].features)
+        self.T_WC_last = self.keyframes[k].T_WC.copy()
+        self._record(cand, k, None, "keyframe")
+        self.mode = Mode.TRACKING
+        status = self.track(frame)
+        if status == "lost":
+            self.stats.tracking_failures += 1
+            self.mode = Mode.RELOC
+        return status
+
+    def _keyframe_pair(self, frame: Frame) -> tuple[int, Any, bool]:
+        """``(kf_idx, prediction, fallback)``: the pair with the last keyframe, or with the one
+        before it when the prior flags the first pair degenerate (``last_status``)."""
+        kf_idx = len(self.keyframes) - 1
+        with self.timer("prior"):
+            p = self.prior.pair(frame, self.keyframes[kf_idx].frame)
+        if kf_idx == 0 or getattr(self.prior, "last_status", "ok") in ("ok", "same"):
+            return kf_idx, p, False
+        with self.timer("prior"):
+            p_prev = self.prior.pair(frame, self.keyframes[kf_idx - 1].frame)
+        if self.prior.last_status != "ok":
+            return kf_idx, p, False
+        return kf_idx - 1, p_prev, True
+
     def track(self, frame: Frame) -> str:
         """Track ``frame`` against the last keyframe (upstream tracker.py::FrameTracker.track).
 
         Returns ``"tracked"``, ``"keyframe"`` (it became a new keyframe) or ``"lost"``.
         """
         tr, kr = self._tracking_ref, self.kernels
-        kf_idx = len(self.keyframes) - 1
+        kf_idx, p, fallback = self._keyframe_pair(frame)
         kf = self.keyframes[kf_idx]
-        with self.timer("prior"):
-            p = self.prior.pair(frame, kf.frame)
         H, W = p.X_ii.shape[:2]
         if (H, W) != kf.shape:
             raise ValueError(f"frame {frame.index}: pointmap shape {(H, W)} != keyframe {kf.shape}")
@@ -249,6 +303,9 @@ class SlamSystem:
             X_kk = sim3.act(T_CkCf, _flat(p.X_ji))
             kf.state = kr.fusion.update_pointmap(kf.state, X_kk, _flat(p.C_ji), self.fusion_cfg)
         new_kf = bool(tr.needs_new_keyframe(idx_f2k, valid_match_k, valid_kf, self.tracking_cfg))
+        if fallback:
+            self.idx_f2k = None  # the matches belong to the older keyframe
+            new_kf = False
         if not new_kf:
             self._record(frame, kf_idx, T_CkCf, "tracked")
             return "tracked"
