@@ -187,3 +187,32 @@ def test_homography_parallax_grows_with_baseline(seq):
         uv = np.stack([u, v], -1).astype(float)
         par.append(homography_parallax(uv, uv + F_ij[v, u]))
     assert 0.1 < par[0] < par[1]
+
+
+def test_system_waits_for_parallax_then_poses_the_waiting_frames(seq):
+    """The frontend fixes keyframe 0 only once a pair has parallax, then poses the frames it
+    kept waiting; keyframe 0's pointmap is triangulated, not mono's plane."""
+    from mslam_ref.config import load_config
+    from mslam_ref.kernels import load_kernels
+    from mslam_ref.system.frontend import SlamSystem
+
+    system = SlamSystem(TwoViewPrior(), load_config("twoview"), load_kernels("ref"))
+    statuses = [system.process(seq[i]) for i in range(8)]
+    assert statuses[0] == "waiting" and statuses[1] == "waiting"
+    first = statuses.index("keyframe")
+    kf0 = system.keyframes[0]
+    assert kf0.frame.index == 0 and system.keyframes[1].frame.index == first
+    z = kf0.state.X_canon[:, 2]
+    assert np.ptp(z) > 0.1 * np.median(z)
+    idx, _, T = system.frame_poses()
+    # Waiting frames are tracked afterwards (against keyframe 1, or keyframe 0 when their pair
+    # with keyframe 1 is degenerate); only those without parallax to either stay unposed.
+    assert {0, first} <= set(idx.tolist()) and len(idx) >= 6
+    # Poses up to one Sim(3): the camera moves forward, so relative positions are collinear-ish
+    # with the true ones (direction error of the chord from frame 0 to the last posed frame).
+    gt = np.stack([seq[i].T_WC[:3] for i in idx])
+    est = T[:, :3]
+    d_gt, d_est = gt[-1] - gt[0], est[-1] - est[0]
+    R0 = so3.to_matrix(seq[0].T_WC[3:7])  # both in camera-0 axes for the comparison
+    cos = (R0.T @ d_gt) @ d_est / np.linalg.norm(d_gt) / np.linalg.norm(d_est)
+    assert cos > np.cos(np.radians(20))

@@ -6,7 +6,8 @@ For RGB-only input without a network (image folders, videos, the RGB stream of T
 
 1. dense flow ``F_ij``, ``F_ji`` (DIS) with a forward–backward check (``fb_px``);
 2. relative pose ``X_j = R_ji X_i + t_ji`` from the essential matrix (RANSAC on at most
-   ``max_ransac_points`` consistent correspondences on a regular grid);
+   ``max_ransac_points`` correspondences on a regular grid with forward–backward error below
+   ``pose_fb_px``), refined on all its inliers (robust Sampson least squares);
 3. the pair is **degenerate** — too few inliers (``min_inliers``), or too little parallax
    (90th percentile of the residuals to the best homography < ``min_parallax_px``, which also
    covers pure rotation) — then no geometry is invented: the pointmaps are fronto-parallel planes,
@@ -60,6 +61,7 @@ from mslam_ref.priors.twoview_geometry import (
     focal_guess_intrinsics,
     forward_backward_error,
     homography_parallax,
+    refine_pose,
     reprojection_error,
     triangulate_midpoint,
 )
@@ -73,6 +75,7 @@ class TwoViewPriorConfig:
 
     Attributes:
         fb_px: forward–backward error (pixels) above which a correspondence is not used.
+        pose_fb_px: stricter forward–backward limit for the correspondences of the pose.
         max_ransac_points: correspondences (grid subsample) given to the essential matrix.
         ransac_px: RANSAC epipolar threshold (pixels).
         min_inliers: fewer RANSAC inliers means a degenerate pair.
@@ -86,6 +89,7 @@ class TwoViewPriorConfig:
     """
 
     fb_px: float = 1.0
+    pose_fb_px: float = 0.3
     max_ransac_points: int = 2000
     ransac_px: float = 1.0
     min_inliers: int = 50
@@ -100,8 +104,16 @@ class TwoViewPriorConfig:
     desc: DescriptorConfig = field(default_factory=DescriptorConfig)
 
     def __post_init__(self) -> None:
-        positive = ("fb_px", "ransac_px", "max_reproj_px", "angle_sigma_deg", "reproj_sigma",
-                    "fb_sigma", "q_contrast")  # fmt: skip
+        positive = (
+            "fb_px",
+            "pose_fb_px",
+            "ransac_px",
+            "max_reproj_px",
+            "angle_sigma_deg",
+            "reproj_sigma",
+            "fb_sigma",
+            "q_contrast",
+        )
         for name in positive:
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name}: must be > 0, got {getattr(self, name)}")
@@ -236,10 +248,9 @@ class TwoViewPrior:
     def _pose(self, F_ij: FloatArray, F_ji: FloatArray, K: FloatArray):
         """RANSAC essential matrix on grid-subsampled consistent flow; returns
         ``R_ji, t_ji, n_inliers, parallax (pixels), median triangulation angle (degrees)``."""
-        H, W = F_ij.shape[:2]
         e_fb, _ = forward_backward_error(F_ij, F_ji)
-        good = e_fb < self.cfg.fb_px
-        step = max(1, int(np.sqrt(H * W / self.cfg.max_ransac_points)))
+        good = e_fb < self.cfg.pose_fb_px
+        step = max(1, int(np.sqrt(good.sum() / self.cfg.max_ransac_points)))
         sub = np.zeros_like(good)
         sub[step // 2 :: step, step // 2 :: step] = True
         v, u = np.nonzero(good & sub)
@@ -250,6 +261,7 @@ class TwoViewPrior:
         R, t, inl = essential_pose(uv_i, uv_j, K, self.cfg.ransac_px)
         if inl.sum() < self.cfg.min_inliers:
             return R, t, int(inl.sum()), 0.0, 0.0
+        R, t = refine_pose(uv_i[inl], uv_j[inl], K, R, t)
         parallax = homography_parallax(uv_i, uv_j, self.cfg.ransac_px)
         _, angle, ok = triangulate_midpoint(uv_i[inl], uv_j[inl], K, R, t)
         angle_deg = float(np.degrees(np.median(np.where(ok, angle, 0.0))))

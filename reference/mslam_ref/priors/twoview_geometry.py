@@ -17,7 +17,7 @@ The maths of :mod:`mslam_ref.priors.twoview`, image pair (i, j) with intrinsics 
 
 Public names, in reading order:
     focal_guess_intrinsics, dense_flow, forward_backward_error, essential_pose,
-    sampson_residuals, homography_parallax, triangulate_midpoint, reprojection_error
+    sampson_residuals, refine_pose, homography_parallax, triangulate_midpoint, reprojection_error
 """
 
 from __future__ import annotations
@@ -33,6 +33,7 @@ __all__ = [
     "focal_guess_intrinsics",
     "forward_backward_error",
     "homography_parallax",
+    "refine_pose",
     "reprojection_error",
     "sampson_residuals",
     "triangulate_midpoint",
@@ -186,6 +187,52 @@ def sampson_residuals(
     num = (xj * Fxi).sum(-1)
     den = np.sqrt(Fxi[:, 0] ** 2 + Fxi[:, 1] ** 2 + Ftxj[:, 0] ** 2 + Ftxj[:, 1] ** 2)
     return num / np.maximum(den, 1e-12)
+
+
+def refine_pose(
+    uv_i: FloatArray,
+    uv_j: FloatArray,
+    K: FloatArray,
+    R_ji: FloatArray,
+    t_ji: FloatArray,
+    huber_px: float = 0.3,
+) -> tuple[FloatArray, FloatArray]:
+    """Refine ``(R_ji, t_ji)`` on all inliers: robust least squares on Sampson distances.
+
+    RANSAC's model is fitted to 5 correspondences; with small baselines its rotation and
+    translation trade off against each other. Parameters: a rotation increment ``ω``
+    (``R = Exp(ω) R₀``) and two coordinates ``a`` of ``t = normalize(t₀ + B a)``, B (3, 2) an
+    orthonormal basis of the plane orthogonal to ``t₀`` (the length of t is not observable).
+    Huber loss with ``huber_px``.
+
+    Args:
+        uv_i, uv_j: (N, 2) inlier correspondences. K: (3, 3). R_ji (3, 3), t_ji (3,).
+
+    Returns:
+        R_ji (3, 3), t_ji (3,) with ``‖t_ji‖ = 1`` (the input when the solver fails).
+    """
+    from scipy.optimize import least_squares
+    from scipy.spatial.transform import Rotation
+
+    t0 = t_ji / np.linalg.norm(t_ji)
+    B = np.linalg.svd(t0[None, :])[2][1:].T
+
+    def unpack(p):
+        t = t0 + B @ p[3:]
+        return Rotation.from_rotvec(p[:3]).as_matrix() @ R_ji, t / np.linalg.norm(t)
+
+    try:
+        res = least_squares(
+            lambda p: sampson_residuals(uv_i, uv_j, K, *unpack(p)),
+            np.zeros(5),
+            loss="huber",
+            f_scale=huber_px,
+        )
+    except (ValueError, np.linalg.LinAlgError):
+        return R_ji, t0
+    if not np.all(np.isfinite(res.x)):
+        return R_ji, t0
+    return unpack(res.x)
 
 
 def homography_parallax(uv_i: FloatArray, uv_j: FloatArray, ransac_px: float = 1.0) -> float:

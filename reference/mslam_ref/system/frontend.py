@@ -5,15 +5,18 @@
 * **INIT** — ``prior.mono(frame)`` gives the first keyframe (pose = identity); mode → TRACKING.
   A prior with ``needs_parallax`` (the two-view prior: one image has no depth) instead keeps
   the first frame as a candidate and fixes it as keyframe 0, with ``X_ii`` of
-  ``prior.pair(candidate, frame)``, at the first frame whose pair is not degenerate
-  (``prior.last_status == "ok"``); frames before it have no pose.
+  ``prior.pair(candidate, frame)``, at the first frame whose pairs with it are not degenerate
+  (``prior.last_status == "ok"``); that frame becomes keyframe 1 and the frames in between
+  are then tracked against the two (status ``"waiting"`` until then).
 * **TRACKING** — ``prior.pair(frame, last keyframe)``, matching (initialised with the previous
   frame's ``idx_f2k``), the masks of spec §5.1, the IRLS Gauss–Newton on ``T_CkCf``
   (constant-position initial guess), fusion of the keyframe's pointmap (``X_kk = T_CkCf · X_kf``,
   paper Eq. 8), and the new-keyframe test (spec §5.5). Too few matches or a Cholesky failure
   switch to RELOC. When the pair with the last keyframe is degenerate (a prior that reports
   ``last_status``, e.g. too little parallax just after a new keyframe), the frame is tracked
-  against the keyframe before it instead, and never becomes a keyframe itself. A new keyframe triggers graph construction and the global backend
+  against the keyframe before it instead, and never becomes a keyframe itself; if that pair is
+  degenerate too for lack of parallax, the frame has no pose but the mode stays TRACKING (the
+  camera is near its keyframes, not lost). A new keyframe triggers graph construction and the global backend
   **synchronously** (upstream's ``single_thread`` mode).
 * **RELOC** — ``mslam_ref.reloc.relocalise`` on the frame; on success mode → TRACKING.
 
@@ -124,6 +127,7 @@ class SlamSystem:
         self.stats = RunStats()
         self.backend_history: list[dict[str, Any]] = []
         self._init_candidate: Frame | None = None
+        self._init_pending: list[Frame] = []
 
     # -- bookkeeping -----------------------------------------------------------------------
     @contextmanager
@@ -209,16 +213,24 @@ class SlamSystem:
         if status == "lost":
             self.stats.tracking_failures += 1
             self.stats.lost_frames += 1
-            self.mode = Mode.RELOC
+            # Too little parallax to the last two keyframes means the camera is still near
+            # them, not lost: the next frame is tracked again instead of relocalised.
+            if getattr(self.prior, "last_status", "ok") != "parallax":
+                self.mode = Mode.RELOC
         return status
 
     def _init_with_parallax(self, frame: Frame) -> str:
-        """INIT for priors without single-image depth: wait for a non-degenerate first pair."""
+        """INIT for priors without single-image depth: wait for a non-degenerate first pair.
+
+        The first frame is the candidate; later frames wait in ``_init_pending``. At the first
+        frame whose pairs with the candidate are usable in both directions, the candidate
+        becomes keyframe 0 (``X_ii`` of ``pair(candidate, frame)``), the frame is tracked and
+        made keyframe 1, and the waiting frames are tracked against these two keyframes.
+        """
         cand = self._init_candidate
         if cand is None:
-            self._init_candidate = frame
-            self._record(frame, -1, None, "lost")
-            return "lost"
+            self._init_candidate, self._init_pending = frame, []
+            return "waiting"
         with self.timer("prior"):
             self.prior.pair(frame, cand)  # the direction tracking uses must be usable too
             status = getattr(self.prior, "last_status", "ok")
@@ -227,23 +239,34 @@ class SlamSystem:
             status = getattr(self.prior, "last_status", "ok")
         if status != "ok":
             if status == "few_inliers":  # too far apart to match: start again from here
-                self.poses = [q for q in self.poses if q.index != cand.index]
-                self._record(cand, -1, None, "lost")
-                self._init_candidate = frame
-            self.stats.lost_frames += 1
-            self._record(frame, -1, None, "lost")
-            return "lost"
-        self.poses = [q for q in self.poses if q.index != cand.index]  # the candidate gets a pose
+                for f in [cand, *self._init_pending]:
+                    self._lost(f)
+                self._init_candidate, self._init_pending = frame, []
+            else:
+                self._init_pending.append(frame)
+            return "waiting"
         k = self.new_keyframe(cand, sim3.identity(), p.X_ii, p.C_ii, p.D_ii, p.Q_ii)
         self.retrieval.insert(self.keyframes[k].features)
         self.T_WC_last = self.keyframes[k].T_WC.copy()
         self._record(cand, k, None, "keyframe")
         self.mode = Mode.TRACKING
-        status = self.track(frame)
+        status = self.track(frame, force_keyframe=True)
         if status == "lost":
             self.stats.tracking_failures += 1
+            self.stats.lost_frames += 1
             self.mode = Mode.RELOC
+        else:
+            T_last = self.T_WC_last.copy()
+            for f in self._init_pending:
+                if self.track(f, allow_keyframe=False) == "lost":
+                    self.stats.lost_frames += 1
+            self.T_WC_last, self.idx_f2k = T_last, None
+        self._init_candidate, self._init_pending = None, []
         return status
+
+    def _lost(self, frame: Frame) -> None:
+        self.stats.lost_frames += 1
+        self._record(frame, -1, None, "lost")
 
     def _keyframe_pair(self, frame: Frame) -> tuple[int, Any, bool]:
         """``(kf_idx, prediction, fallback)``: the pair with the last keyframe, or with the one
@@ -259,10 +282,12 @@ class SlamSystem:
             return kf_idx, p, False
         return kf_idx - 1, p_prev, True
 
-    def track(self, frame: Frame) -> str:
+    def track(self, frame: Frame, allow_keyframe: bool = True, force_keyframe: bool = False) -> str:
         """Track ``frame`` against the last keyframe (upstream tracker.py::FrameTracker.track).
 
-        Returns ``"tracked"``, ``"keyframe"`` (it became a new keyframe) or ``"lost"``.
+        ``allow_keyframe=False`` / ``force_keyframe=True`` override the new-keyframe test (used
+        by the parallax-waiting INIT). Returns ``"tracked"``, ``"keyframe"`` (it became a new
+        keyframe) or ``"lost"``.
         """
         tr, kr = self._tracking_ref, self.kernels
         kf_idx, p, fallback = self._keyframe_pair(frame)
@@ -305,7 +330,7 @@ class SlamSystem:
         new_kf = bool(tr.needs_new_keyframe(idx_f2k, valid_match_k, valid_kf, self.tracking_cfg))
         if fallback:
             self.idx_f2k = None  # the matches belong to the older keyframe
-            new_kf = False
+        new_kf = (new_kf or force_keyframe) and allow_keyframe and not fallback
         if not new_kf:
             self._record(frame, kf_idx, T_CkCf, "tracked")
             return "tracked"
