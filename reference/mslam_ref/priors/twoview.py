@@ -36,7 +36,9 @@ own camera, normalised) when it has one, else a fronto-parallel plane at distanc
 
 ``last_status`` is ``"ok"``, ``"same"`` (i is j), ``"few_inliers"`` or ``"parallax"``;
 ``last_info`` has the inlier count, the homography parallax (pixels) and the median
-triangulation angle (degrees) of the last pair.
+triangulation angle (degrees) of the last pair; ``last_R_ji`` (3, 3) the rotation of a pair
+flagged ``"parallax"`` (well determined without parallax; the frontend poses such frames by
+rotation only), else None.
 
 Public names, in reading order:
     TwoViewPriorConfig, TwoViewPrior
@@ -147,6 +149,7 @@ class TwoViewPrior:
                 raise ValueError("K: expected (3, 3) intrinsics together with image_size (W, H)")
         self.K, self.image_size, self.cfg = K, image_size, cfg
         self.last_status = "none"
+        self.last_R_ji: FloatArray | None = None
         self.last_info: dict[str, float] = {}
         self._cache: OrderedDict[tuple, object] = OrderedDict()
         self._views: OrderedDict[int, tuple[FloatArray, FloatArray]] = OrderedDict()
@@ -219,21 +222,28 @@ class TwoViewPrior:
         K = self.K_for(frame_i)
         key = ("flow", hash(frame_i.rgb.tobytes()), hash(frame_j.rgb.tobytes()))
         F_ij, F_ji = self._cached(key, lambda: dense_flow(frame_i.rgb, frame_j.rgb))
+        self.last_R_ji = None
         R, t, n_inl, parallax, angle = self._pose(F_ij, F_ji, K)
         self.last_info = {"inliers": n_inl, "parallax_px": parallax, "angle_deg": angle}
         if n_inl < cfg.min_inliers:
             self.last_status = "few_inliers"
             return None
         if parallax < cfg.min_parallax_px:
-            self.last_status = "parallax"
+            self.last_status, self.last_R_ji = "parallax", R
             return None
-        self.last_status = "ok"
         X_ii, C_ii, ok_i = self._view(F_ij, F_ji, K, R, t, forward=True)
         X_ji, C_ji, ok_j = self._view(F_ji, F_ij, K, R, t, forward=False)
         dist = np.concatenate([np.linalg.norm(X_ii[ok_i], axis=-1),
                                np.linalg.norm(X_ji[ok_j], axis=-1)])  # fmt: skip
+        if min(ok_i.sum(), ok_j.sum()) < cfg.min_inliers or not np.median(dist) > 0:
+            self.last_status = "few_inliers"  # too few pixels triangulate in one image
+            return None
         s = 1.0 / np.median(dist)
         X_ii, X_ji = X_ii * s, X_ji * s
+        if not (np.all(np.isfinite(X_ii)) and np.all(np.isfinite(X_ji))):
+            self.last_status = "few_inliers"
+            return None
+        self.last_status = "ok"
         self._remember(frame_i, X_ii, C_ii)
         self._remember(frame_j, X_ji @ R.T + s * t, C_ji)  # X_jj = R_ji X_ji + s t_ji
         return X_ii, C_ii, X_ji, C_ji

@@ -14,9 +14,10 @@
   paper Eq. 8), and the new-keyframe test (spec §5.5). Too few matches or a Cholesky failure
   switch to RELOC. When the pair with the last keyframe is degenerate (a prior that reports
   ``last_status``, e.g. too little parallax just after a new keyframe), the frame is tracked
-  against the keyframe before it instead, and never becomes a keyframe itself; if that pair is
-  degenerate too for lack of parallax, the frame has no pose but the mode stays TRACKING (the
-  camera is near its keyframes, not lost). A new keyframe triggers graph construction and the global backend
+  against the keyframe before it instead, and never becomes a keyframe itself; if that fails
+  too and the pair with the last keyframe lacked parallax, the camera is near that keyframe,
+  and the frame gets the pair's rotation with zero translation (status ``"rotation"``,
+  nothing fused). A new keyframe triggers graph construction and the global backend
   **synchronously** (upstream's ``single_thread`` mode).
 * **RELOC** — ``mslam_ref.reloc.relocalise`` on the frame; on success mode → TRACKING.
 
@@ -128,6 +129,7 @@ class SlamSystem:
         self.backend_history: list[dict[str, Any]] = []
         self._init_candidate: Frame | None = None
         self._init_pending: list[Frame] = []
+        self._rotation_only: np.ndarray | None = None
 
     # -- bookkeeping -----------------------------------------------------------------------
     @contextmanager
@@ -213,10 +215,7 @@ class SlamSystem:
         if status == "lost":
             self.stats.tracking_failures += 1
             self.stats.lost_frames += 1
-            # Too little parallax to the last two keyframes means the camera is still near
-            # them, not lost: the next frame is tracked again instead of relocalised.
-            if getattr(self.prior, "last_status", "ok") != "parallax":
-                self.mode = Mode.RELOC
+            self.mode = Mode.RELOC
         return status
 
     def _init_with_parallax(self, frame: Frame) -> str:
@@ -270,17 +269,40 @@ class SlamSystem:
 
     def _keyframe_pair(self, frame: Frame) -> tuple[int, Any, bool]:
         """``(kf_idx, prediction, fallback)``: the pair with the last keyframe, or with the one
-        before it when the prior flags the first pair degenerate (``last_status``)."""
+        before it when the prior flags the first pair degenerate (``last_status``).
+
+        Sets ``_rotation_only`` to the prior's ``last_R_ji`` when the pair with the last
+        keyframe lacks parallax and no fallback worked (else None).
+        """
+        self._rotation_only = None
         kf_idx = len(self.keyframes) - 1
         with self.timer("prior"):
             p = self.prior.pair(frame, self.keyframes[kf_idx].frame)
-        if kf_idx == 0 or getattr(self.prior, "last_status", "ok") in ("ok", "same"):
+        status = getattr(self.prior, "last_status", "ok")
+        if status in ("ok", "same"):
             return kf_idx, p, False
-        with self.timer("prior"):
-            p_prev = self.prior.pair(frame, self.keyframes[kf_idx - 1].frame)
-        if self.prior.last_status != "ok":
-            return kf_idx, p, False
-        return kf_idx - 1, p_prev, True
+        R_ji = getattr(self.prior, "last_R_ji", None) if status == "parallax" else None
+        if kf_idx > 0:
+            with self.timer("prior"):
+                p_prev = self.prior.pair(frame, self.keyframes[kf_idx - 1].frame)
+            if self.prior.last_status == "ok":
+                return kf_idx - 1, p_prev, True
+        self._rotation_only = R_ji
+        return kf_idx, p, False
+
+    def _track_rotation_only(self, frame: Frame, kf_idx: int) -> str:
+        """Pose a frame without parallax to its keyframe: the pair's rotation, no translation.
+
+        With parallax below the prior's threshold the camera centre is within a small fraction
+        of the scene depth from the keyframe's, so ``T_CkCf = (0, R_ji, 1)`` is off by at most
+        that baseline. Nothing is fused and the frame never becomes a keyframe.
+        """
+        from mslam_ref import so3
+
+        T_CkCf = np.concatenate([np.zeros(3), so3.from_matrix(self._rotation_only), [1.0]])
+        self.T_WC_last = sim3.mul(self.keyframes[kf_idx].T_WC, T_CkCf)
+        self._record(frame, kf_idx, T_CkCf, "rotation")
+        return "rotation"
 
     def track(self, frame: Frame, allow_keyframe: bool = True, force_keyframe: bool = False) -> str:
         """Track ``frame`` against the last keyframe (upstream tracker.py::FrameTracker.track).
@@ -291,6 +313,8 @@ class SlamSystem:
         """
         tr, kr = self._tracking_ref, self.kernels
         kf_idx, p, fallback = self._keyframe_pair(frame)
+        if self._rotation_only is not None:
+            return self._track_rotation_only(frame, kf_idx)
         kf = self.keyframes[kf_idx]
         H, W = p.X_ii.shape[:2]
         if (H, W) != kf.shape:
