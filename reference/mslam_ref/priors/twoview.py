@@ -9,8 +9,9 @@ For RGB-only input without a network (image folders, videos, the RGB stream of T
    ``max_ransac_points`` correspondences on a regular grid with forward–backward error below
    ``pose_fb_px``), refined on all its inliers (robust Sampson least squares);
 3. the pair is **degenerate** — too few inliers (``min_inliers``), or too little parallax
-   (90th percentile of the residuals to the best homography < ``min_parallax_px``, which also
-   covers pure rotation) — then no geometry is invented: the pointmaps are fronto-parallel planes,
+   (:func:`homography_parallax` < ``min_parallax_px``: the flow is a homography that is a
+   rotation, which covers pure rotation and a tiny baseline, but not a plane seen from two
+   centres) — then no geometry is invented: the pointmaps are fronto-parallel planes,
    ``C = 1`` everywhere and ``Q_ji = FAILED_Q``, so the match quality ``sqrt(Q_ii Q_ji)``
    stays under upstream's ``Q_conf`` and tracking, edges and relocalisation reject the pair;
 4. otherwise every pixel of i (with ``F_ij``) and of j (with ``F_ji``) is triangulated in
@@ -272,7 +273,7 @@ class TwoViewPrior:
         if inl.sum() < self.cfg.min_inliers:
             return R, t, int(inl.sum()), 0.0, 0.0
         R, t = refine_pose(uv_i[inl], uv_j[inl], K, R, t)
-        parallax = homography_parallax(uv_i, uv_j, self.cfg.ransac_px)
+        parallax = homography_parallax(uv_i, uv_j, K, self.cfg.ransac_px)
         _, angle, ok = triangulate_midpoint(uv_i[inl], uv_j[inl], K, R, t)
         angle_deg = float(np.degrees(np.median(np.where(ok, angle, 0.0))))
         return R, t, int(inl.sum()), parallax, angle_deg

@@ -10,10 +10,10 @@ The maths of :mod:`mslam_ref.priors.twoview`, image pair (i, j) with intrinsics 
 * midpoint triangulation in camera i: rays ``a = K⁻¹[u_i, 1]`` from the origin and
   ``b = R_jiᵀ K⁻¹[u_j, 1]`` from the centre ``c_j = -R_jiᵀ t_ji``; depths (λ, μ) minimise
   ``‖λ a - (c_j + μ b)‖²``, the point is the midpoint; the triangulation angle is ∠(a, b);
-* parallax of the pair: the 90th percentile of the residuals ``‖u_j - H u_i‖`` of the best
-  homography H (RANSAC). Pure rotation (``H = K R K⁻¹``), a tiny baseline and a plane all give
-  ~0; it does not depend on the essential matrix, whose translation (and so the triangulation
-  angle) is noise when the baseline is tiny.
+* parallax of the pair from the best homography H (RANSAC), not from the essential matrix,
+  whose translation (and so the triangulation angle) is noise when the baseline is tiny: the
+  residuals ``‖u_j - H u_i‖`` (a non-planar scene) and the departure of ``K⁻¹ H K`` from a
+  rotation (a plane seen from two centres). Pure rotation and a tiny baseline give ~0 for both.
 
 Public names, in reading order:
     focal_guess_intrinsics, dense_flow, forward_backward_error, essential_pose,
@@ -235,11 +235,28 @@ def refine_pose(
     return unpack(res.x)
 
 
-def homography_parallax(uv_i: FloatArray, uv_j: FloatArray, ransac_px: float = 1.0) -> float:
-    """Parallax of a pair in pixels: 90th percentile of ``‖u_j - H u_i‖`` (H by RANSAC).
+def homography_parallax(
+    uv_i: FloatArray,
+    uv_j: FloatArray,
+    K: FloatArray,
+    ransac_px: float = 1.0,
+    plane_margin_px: float = 1.0,
+) -> float:
+    """Parallax of a pair in pixels: how far the flow is from a pure rotation.
+
+    The best homography H (RANSAC) explains the flow of a pure rotation
+    (``K⁻¹ H K = R``), of a tiny baseline, and of a plane seen from two centres
+    (``K⁻¹ H K = R + t nᵀ/d``). Two terms, the larger is returned:
+
+    * off-homography parallax: 90th percentile of ``‖u_j - H u_i‖`` (a non-planar scene);
+    * plane parallax: ``f · (σ₁ - σ₃) / σ₂ - plane_margin_px`` with σ the singular values of
+      ``K⁻¹ H K``, which are equal for a rotation and differ by about ``‖t‖/d`` for a plane at
+      distance d. H fitted to DIS flow is noisy at the image borders: a pure 3° rotation at
+      128x96 gives ``f · (σ₁ - σ₃) / σ₂ ≈ 0.6 px``, hence the margin.
 
     Args:
         uv_i, uv_j: (N, 2) corresponding pixels (N >= 4; fewer gives 0).
+        K: (3, 3) intrinsics (the focal-length guess when uncalibrated).
 
     Returns:
         pixels (0 when no homography can be fitted).
@@ -252,11 +269,14 @@ def homography_parallax(uv_i: FloatArray, uv_j: FloatArray, ransac_px: float = 1
         H, _ = cv2.findHomography(uv_i, uv_j, cv2.RANSAC, ransac_px)
     except cv2.error:
         return 0.0
-    if H is None:
+    if H is None or not np.all(np.isfinite(H)):
         return 0.0
     p = np.hstack([uv_i, np.ones((len(uv_i), 1))]) @ H.T
     w = np.where(np.abs(p[:, 2:]) > 1e-12, p[:, 2:], 1e-12)
-    return float(np.percentile(np.linalg.norm(p[:, :2] / w - uv_j, axis=1), 90))
+    off_plane = float(np.percentile(np.linalg.norm(p[:, :2] / w - uv_j, axis=1), 90))
+    sv = np.linalg.svd(np.linalg.inv(K) @ H @ K, compute_uv=False)
+    plane = float(0.5 * (K[0, 0] + K[1, 1]) * (sv[0] - sv[2]) / max(sv[1], 1e-12))
+    return max(off_plane, plane - plane_margin_px)
 
 
 def triangulate_midpoint(
