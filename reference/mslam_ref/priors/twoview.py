@@ -8,7 +8,8 @@ For RGB-only input without a network (image folders, videos, the RGB stream of T
 2. relative pose ``X_j = R_ji X_i + t_ji`` from the essential matrix (RANSAC on at most
    ``max_ransac_points`` correspondences on a regular grid with forward–backward error below
    ``pose_fb_px``), refined on all its inliers (robust Sampson least squares);
-3. the pair is **degenerate** — too few inliers (``min_inliers``), or too little parallax
+3. the pair is **degenerate** — too few inliers (``min_inliers``) or consistent flow vectors
+   (``min_flow_frac``), or too little parallax
    (:func:`homography_parallax` < ``min_parallax_px``: the flow is a homography that is a
    rotation, which covers pure rotation and a tiny baseline, but not a plane seen from two
    centres) — then no geometry is invented: the pointmaps are fronto-parallel planes,
@@ -82,6 +83,9 @@ class TwoViewPriorConfig:
         max_ransac_points: correspondences (grid subsample) given to the essential matrix.
         ransac_px: RANSAC epipolar threshold (pixels).
         min_inliers: fewer RANSAC inliers means a degenerate pair.
+        min_flow_frac: a pair whose share of pixels passing the forward–backward check (fb_px)
+            is lower is degenerate too (DIS breaks down under large motion and still returns
+            a few hundred self-consistent vectors).
         min_parallax_px: homography parallax (pixels) below which a pair is degenerate.
         max_reproj_px: triangulated pixels reprojecting worse than this are not used.
         conf_max: ``C - 1`` of a perfect pixel.
@@ -95,7 +99,8 @@ class TwoViewPriorConfig:
     pose_fb_px: float = 0.3
     max_ransac_points: int = 2000
     ransac_px: float = 1.0
-    min_inliers: int = 50
+    min_inliers: int = 200
+    min_flow_frac: float = 0.3
     min_parallax_px: float = 0.5
     max_reproj_px: float = 2.0
     conf_max: float = 20.0
@@ -260,6 +265,8 @@ class TwoViewPrior:
         """RANSAC essential matrix on grid-subsampled consistent flow; returns
         ``R_ji, t_ji, n_inliers, parallax (pixels), median triangulation angle (degrees)``."""
         e_fb, _ = forward_backward_error(F_ij, F_ji)
+        if np.mean(e_fb < self.cfg.fb_px) < self.cfg.min_flow_frac:
+            return np.eye(3), np.zeros(3), 0, 0.0, 0.0
         good = e_fb < self.cfg.pose_fb_px
         step = max(1, int(np.sqrt(good.sum() / self.cfg.max_ransac_points)))
         sub = np.zeros_like(good)

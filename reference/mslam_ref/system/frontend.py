@@ -17,7 +17,9 @@
   against the keyframe before it instead, and never becomes a keyframe itself; if that fails
   too and the pair with the last keyframe lacked parallax, the camera is near that keyframe,
   and the frame gets the pair's rotation with zero translation (status ``"rotation"``,
-  nothing fused). A new keyframe triggers graph construction and the global backend
+  nothing fused). When the prior reports the pair with the last keyframe as having too few
+  correspondences (``last_status == "few_inliers"``: the frame is too far from it), the last
+  tracked frame is made a keyframe first (late) and the frame tracked against it. A new keyframe triggers graph construction and the global backend
   **synchronously** (upstream's ``single_thread`` mode).
 * **RELOC** — ``mslam_ref.reloc.relocalise`` on the frame; on success mode → TRACKING.
 
@@ -130,6 +132,8 @@ class SlamSystem:
         self._init_candidate: Frame | None = None
         self._init_pending: list[Frame] = []
         self._rotation_only: np.ndarray | None = None
+        self._first_status = "ok"
+        self._last_tracked: tuple | None = None
 
     # -- bookkeeping -----------------------------------------------------------------------
     @contextmanager
@@ -279,6 +283,7 @@ class SlamSystem:
         with self.timer("prior"):
             p = self.prior.pair(frame, self.keyframes[kf_idx].frame)
         status = getattr(self.prior, "last_status", "ok")
+        self._first_status = status
         if status in ("ok", "same"):
             return kf_idx, p, False
         R_ji = getattr(self.prior, "last_R_ji", None) if status == "parallax" else None
@@ -304,6 +309,30 @@ class SlamSystem:
         self._record(frame, kf_idx, T_CkCf, "rotation")
         return "rotation"
 
+    def _promote_last_tracked(self) -> bool:
+        """Make the last tracked frame a keyframe (late), when the current frame is already
+        too far from the last keyframe for the prior (``last_status == "few_inliers"``).
+
+        A prior whose correspondences break down under large motion (the two-view prior's
+        optical flow) can lose a keyframe before the match-fraction test asks for a new one;
+        the previous frame, tracked with its own pointmap ``X_ii`` and pose, is then the
+        keyframe that should have been made. Returns whether one was added.
+        """
+        last = self._last_tracked
+        self._last_tracked = None
+        if last is None or last[0].index == self.keyframes[len(self.keyframes) - 1].frame.index:
+            return False
+        frame, T_WC, X, C, D, Q = last
+        k = self.new_keyframe(frame, T_WC, X, C, D, Q)
+        self.poses = [q for q in self.poses if q.index != frame.index]
+        self._record(frame, k, None, "keyframe")
+        with self.timer("graph"):
+            add_keyframe_edges(self, k)
+        with self.timer("backend"):
+            solve_backend(self)
+        self.T_WC_last, self.idx_f2k = self.keyframes[k].T_WC.copy(), None
+        return True
+
     def track(self, frame: Frame, allow_keyframe: bool = True, force_keyframe: bool = False) -> str:
         """Track ``frame`` against the last keyframe (upstream tracker.py::FrameTracker.track).
 
@@ -313,6 +342,13 @@ class SlamSystem:
         """
         tr, kr = self._tracking_ref, self.kernels
         kf_idx, p, fallback = self._keyframe_pair(frame)
+        if (
+            self._first_status == "few_inliers"
+            and not fallback
+            and allow_keyframe
+            and self._promote_last_tracked()
+        ):
+            kf_idx, p, fallback = self._keyframe_pair(frame)
         if self._rotation_only is not None:
             return self._track_rotation_only(frame, kf_idx)
         kf = self.keyframes[kf_idx]
@@ -355,6 +391,7 @@ class SlamSystem:
         if fallback:
             self.idx_f2k = None  # the matches belong to the older keyframe
         new_kf = (new_kf or force_keyframe) and allow_keyframe and not fallback
+        self._last_tracked = (frame, T_WCf, p.X_ii, p.C_ii, p.D_ii, p.Q_ii)
         if not new_kf:
             self._record(frame, kf_idx, T_CkCf, "tracked")
             return "tracked"
