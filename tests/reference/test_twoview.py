@@ -216,3 +216,28 @@ def test_system_waits_for_parallax_then_poses_the_waiting_frames(seq):
     R0 = so3.to_matrix(seq[0].T_WC[3:7])  # both in camera-0 axes for the comparison
     cos = (R0.T @ d_gt) @ d_est / np.linalg.norm(d_gt) / np.linalg.norm(d_est)
     assert cos > np.cos(np.radians(20))
+
+
+def test_cli_runs_an_rgb_image_folder_with_the_twoview_prior(seq, tmp_path, capsys):
+    """An image folder has no depth: without --prior it is a one-line error naming twoview;
+    with --prior twoview it runs with the packaged twoview config (focal-length guess)."""
+    import json
+
+    import cv2
+
+    from mslam_ref.cli import main
+
+    folder = tmp_path / "images"
+    folder.mkdir()
+    for i in range(0, 12, 2):
+        cv2.imwrite(str(folder / f"{i:04d}.png"), cv2.cvtColor(seq[i].rgb, cv2.COLOR_RGB2BGR))
+    out = tmp_path / "out"
+    assert main(["run", str(folder), "--out", str(out), "--quiet"]) != 0
+    err = capsys.readouterr().err.strip()
+    assert "--prior twoview" in err and len(err.splitlines()) == 1
+    args = ["run", str(folder), "--out", str(out), "--prior", "twoview", "--kernels", "ref"]
+    assert main([*args, "--quiet"]) == 0
+    s = json.loads((out / "summary.json").read_text())
+    assert s["prior"] == "twoview" and s["frames"] == 6 and not s["calibrated"]
+    assert s["config"]["tracking"]["match_frac_thresh"] == 0.5
+    assert s["frames_with_pose"] >= 4
