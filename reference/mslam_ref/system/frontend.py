@@ -19,8 +19,9 @@
   and the frame gets the pair's rotation with zero translation (status ``"rotation"``,
   nothing fused). When the prior reports the pair with the last keyframe as having too few
   correspondences (``last_status == "few_inliers"``: the frame is too far from it), the last
-  tracked frame is made a keyframe first (late) and the frame tracked against it. A new keyframe triggers graph construction and the global backend
-  **synchronously** (upstream's ``single_thread`` mode).
+  tracked frame is made a keyframe first (late) and the frame tracked against it. A new
+  keyframe triggers graph construction and the global backend **synchronously** (upstream's
+  ``single_thread`` mode).
 * **RELOC** — ``mslam_ref.reloc.relocalise`` on the frame; on success mode → TRACKING.
 
 Every frame's pose is stored *relative to a keyframe* (``T_CkCf``) and composed with the final
