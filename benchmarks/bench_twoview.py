@@ -149,9 +149,10 @@ def main() -> None:
         "\n\nATE: Sim(3)-aligned RMSE over the frames with a pose. Keyframe log-scale std: the "
         "spread over keyframes of log(s_k · median z_k / median z_gt), keyframe pointmap z "
         "against ground-truth depth (never read by the twoview prior), with the pose each "
-        "keyframe was created with and with its final pose. Frames without a pose are the "
-        "frames before the first pair with enough parallax and frames with too little "
-        'parallax to both last keyframes (docs/priors.md, "Two-view prior").'
+        "keyframe was created with and with its final pose. Frames that waited for parallax "
+        "at the start are tracked once the first two keyframes exist; frames with too little "
+        "parallax to both last keyframes are posed by the pair's rotation with zero "
+        'translation (docs/priors.md, "Two-view prior").'
     )
     write_section("twoview", "Two-view prior, RGB only (issue 15)", text)
 
