@@ -3,7 +3,7 @@
 ::
 
     mslam run [SOURCE] --out DIR [--config FILE] [--kernels ref|fast] [--calib FILE]
-              [--prior synthetic|rgbd|mast3r] [--set SECTION.KEY=VALUE ...]
+              [--prior synthetic|rgbd|mast3r|twoview] [--set SECTION.KEY=VALUE ...]
               [--max-frames N] [--baseline] [--quiet]
 
 SOURCE: nothing (the built-in synthetic ``loop``), ``synthetic:NAME[:FRAMES[:WxH]]``, a
@@ -47,8 +47,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--config",
         metavar="FILE",
-        help="YAML config (inherit: base.yaml); 'base', 'calib' and 'rgbd' name the packaged "
-        "files (default: base, or rgbd with the RGB-D prior)",
+        help="YAML config (inherit: base.yaml); 'base', 'calib', 'rgbd' and 'twoview' name the "
+        "packaged files (default: base, or the prior's own for rgbd and twoview)",
     )
     p.add_argument(
         "--kernels",
@@ -64,9 +64,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--prior",
-        choices=("synthetic", "rgbd", "mast3r"),
+        choices=("synthetic", "rgbd", "mast3r", "twoview"),
         help="where pointmaps come from (default: synthetic for synthetic "
-        "sources, rgbd when the source has depth)",
+        "sources, rgbd when the source has depth; twoview: RGB only, classical geometry)",
     )
     p.add_argument(
         "--set",
@@ -121,10 +121,10 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--max-frames: must be >= 1, got {args.max_frames}")
     cfg = load_config(args.config, args.overrides)
     source = open_source(args.source, cfg, args.calib, args.prior, args.max_frames)
-    if args.config is None and source.prior_name == "rgbd":
+    if args.config is None and source.prior_name in ("rgbd", "twoview"):
         # The RGB-D prior's packaged default (configs/rgbd.yaml, docs/system.md): its working
         # resolution and two tracking keys differ from base.yaml, so open the source again.
-        cfg = load_config("rgbd", args.overrides)
+        cfg = load_config(source.prior_name, args.overrides)
         source = open_source(args.source, cfg, args.calib, args.prior, args.max_frames)
     _check_resolution(source, cfg)
     if args.calib is not None and not cfg.use_calib:

@@ -43,9 +43,10 @@ import cv2
 
 from mslam.config import SlamConfig
 from mslam.kernels import KernelSet
-from mslam.system.frontend import FramePose, Mode, RunStats, SlamSystem
+from mslam.system.frontend import SlamSystem
 from mslam.system.outputs import write_outputs
 from mslam.system.sources import Source, open_source
+from mslam.system.state import FramePose, Mode, RunStats
 
 __all__ = [
     "FramePose",

@@ -3,12 +3,25 @@
 ``SlamSystem.process(frame)`` is upstream's main-loop body for one frame, single process:
 
 * **INIT** — ``prior.mono(frame)`` gives the first keyframe (pose = identity); mode → TRACKING.
+  A prior with ``needs_parallax`` (the two-view prior: one image has no depth) instead keeps
+  the first frame as a candidate and fixes it as keyframe 0, with ``X_ii`` of
+  ``prior.pair(candidate, frame)``, at the first frame whose pairs with it are not degenerate
+  (``prior.last_status == "ok"``); that frame becomes keyframe 1 and the frames in between
+  are then tracked against the two (status ``"waiting"`` until then).
 * **TRACKING** — ``prior.pair(frame, last keyframe)``, matching (initialised with the previous
   frame's ``idx_f2k``), the masks of docs/upstream.md §5.1, the IRLS Gauss–Newton on ``T_CkCf``
   (constant-position initial guess), fusion of the keyframe's pointmap (``X_kk = T_CkCf · X_kf``,
   paper Eq. 8), and the new-keyframe test (docs/upstream.md §5.5). Too few matches or a Cholesky failure
-  switch to RELOC. A new keyframe triggers graph construction and the global backend
-  **synchronously** (upstream's ``single_thread`` mode).
+  switch to RELOC. When the pair with the last keyframe is degenerate (a prior that reports
+  ``last_status``, e.g. too little parallax just after a new keyframe), the frame is tracked
+  against the keyframe before it instead, and never becomes a keyframe itself; if that fails
+  too and the pair with the last keyframe lacked parallax, the camera is near that keyframe,
+  and the frame gets the pair's rotation with zero translation (status ``"rotation"``,
+  nothing fused). When the prior reports the pair with the last keyframe as having too few
+  correspondences (``last_status == "few_inliers"``: the frame is too far from it), the last
+  tracked frame is made a keyframe first (late) and the frame tracked against it. A new
+  keyframe triggers graph construction and the global backend **synchronously** (upstream's
+  ``single_thread`` mode).
 * **RELOC** — ``mslam.system.reloc.relocalise`` on the frame; on success mode → TRACKING.
 
 Every frame's pose is stored *relative to a keyframe* (``T_CkCf``) and composed with the final
@@ -21,11 +34,8 @@ Public names, in reading order:
 
 from __future__ import annotations
 
-import enum
 import time
-from collections import defaultdict
 from contextlib import contextmanager
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -33,51 +43,15 @@ import numpy as np
 from mslam.config import SlamConfig
 from mslam.datasets.frame import Frame
 from mslam.kernels import KernelSet
+from mslam.system import parallax
 from mslam.system.backend_step import add_keyframe_edges, solve_backend
 from mslam.system.graph import FactorGraph, Keyframe, KeyframeStore
 from mslam.system.retrieval_features import RetrievalIndex
+from mslam.system.state import FramePose, Mode, RunStats
 from mslam_ref import sim3
 from mslam_ref.conventions import FloatArray
 
 __all__ = ["FramePose", "Mode", "RunStats", "SlamSystem"]
-
-
-class Mode(enum.IntEnum):
-    """Upstream frame.py::Mode."""
-
-    INIT = 0
-    TRACKING = 1
-    RELOC = 2
-    TERMINATED = 3
-
-
-@dataclass
-class FramePose:
-    """A processed frame's pose relative to keyframe ``kf``: ``T_WC = T_WC[kf] ∘ T_CkCf``.
-
-    ``status`` is ``"keyframe"`` (the frame became keyframe ``kf``), ``"tracked"``,
-    ``"relocalised"`` or ``"lost"`` (no pose; ``kf = -1``).
-    """
-
-    index: int
-    timestamp: float
-    kf: int
-    T_CkCf: FloatArray
-    status: str
-
-
-@dataclass
-class RunStats:
-    """Counters and per-stage seconds of a run (reported in ``summary.json``)."""
-
-    frames: int = 0
-    lost_frames: int = 0
-    tracking_failures: int = 0
-    reloc_attempts: int = 0
-    relocalisations: int = 0
-    skipped_frames: int = 0
-    backend_solves: int = 0
-    seconds: dict[str, float] = field(default_factory=lambda: defaultdict(float))
 
 
 def _flat(a: np.ndarray) -> np.ndarray:
@@ -117,6 +91,11 @@ class SlamSystem:
         self.poses: list[FramePose] = []
         self.stats = RunStats()
         self.backend_history: list[dict[str, Any]] = []
+        self._init_candidate: Frame | None = None
+        self._init_pending: list[Frame] = []
+        self._rotation_only: np.ndarray | None = None
+        self._first_status = "ok"
+        self._last_tracked: tuple | None = None
 
     # -- bookkeeping -----------------------------------------------------------------------
     @contextmanager
@@ -170,6 +149,8 @@ class SlamSystem:
     def process(self, frame: Frame) -> str:
         """Process one frame (docs/upstream.md §1.4); returns its status."""
         self.stats.frames += 1
+        if self.mode == Mode.INIT and getattr(self.prior, "needs_parallax", False):
+            return parallax.init_with_parallax(self, frame)
         if self.mode == Mode.INIT:
             with self.timer("prior"):
                 X, C = self.prior.mono(frame)
@@ -203,16 +184,29 @@ class SlamSystem:
             self.mode = Mode.RELOC
         return status
 
-    def track(self, frame: Frame) -> str:
+    def _lost(self, frame: Frame) -> None:
+        self.stats.lost_frames += 1
+        self._record(frame, -1, None, "lost")
+
+    def track(self, frame: Frame, allow_keyframe: bool = True, force_keyframe: bool = False) -> str:
         """Track ``frame`` against the last keyframe (upstream tracker.py::FrameTracker.track).
 
-        Returns ``"tracked"``, ``"keyframe"`` (it became a new keyframe) or ``"lost"``.
+        ``allow_keyframe=False`` / ``force_keyframe=True`` override the new-keyframe test (used
+        by the parallax-waiting INIT). Returns ``"tracked"``, ``"keyframe"`` (it became a new
+        keyframe) or ``"lost"``.
         """
         tr, kr = self._tracking_ref, self.kernels
-        kf_idx = len(self.keyframes) - 1
+        kf_idx, p, fallback = parallax.keyframe_pair(self, frame)
+        if (
+            self._first_status == "few_inliers"
+            and not fallback
+            and allow_keyframe
+            and parallax.promote_last_tracked(self)
+        ):
+            kf_idx, p, fallback = parallax.keyframe_pair(self, frame)
+        if self._rotation_only is not None:
+            return parallax.track_rotation_only(self, frame, kf_idx)
         kf = self.keyframes[kf_idx]
-        with self.timer("prior"):
-            p = self.prior.pair(frame, kf.frame)
         H, W = p.X_ii.shape[:2]
         if (H, W) != kf.shape:
             raise ValueError(f"frame {frame.index}: pointmap shape {(H, W)} != keyframe {kf.shape}")
@@ -249,6 +243,10 @@ class SlamSystem:
             X_kk = sim3.act(T_CkCf, _flat(p.X_ji))
             kf.state = kr.fusion.update_pointmap(kf.state, X_kk, _flat(p.C_ji), self.fusion_cfg)
         new_kf = bool(tr.needs_new_keyframe(idx_f2k, valid_match_k, valid_kf, self.tracking_cfg))
+        if fallback:
+            self.idx_f2k = None  # the matches belong to the older keyframe
+        new_kf = (new_kf or force_keyframe) and allow_keyframe and not fallback
+        self._last_tracked = (frame, T_WCf, p.X_ii, p.C_ii, p.D_ii, p.Q_ii)
         if not new_kf:
             self._record(frame, kf_idx, T_CkCf, "tracked")
             return "tracked"

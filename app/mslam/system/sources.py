@@ -12,7 +12,8 @@ error (``ValueError``/``FileNotFoundError``) and no output is written:
 * ``--calib FILE`` (upstream: forces ``use_calib``) sets the intrinsics; its ``width``/``height``
   must match the images. ``use_calib`` without any intrinsics is an error.
 * Prior: ``synthetic`` for synthetic sources, ``rgbd`` when the frames carry depth, otherwise
-  ``mast3r`` must be asked for explicitly; a depth-less source without it is an error.
+  ``mast3r`` or ``twoview`` (RGB only, ignores depth; K only when calibrated) must be asked
+  for explicitly; a depth-less source without one is an error.
 * ``dataset.long_side`` shrinks frames (never enlarges) so the long side has that many pixels,
   with the intrinsics rescaled; ``dataset.subsample`` keeps every n-th frame.
 
@@ -37,7 +38,7 @@ from mslam.datasets.views import ResizedSequence, SubsampledSequence, TruncatedS
 __all__ = ["PRIORS", "Source", "open_source"]
 
 #: Accepted ``--prior`` values.
-PRIORS = ("synthetic", "rgbd", "mast3r")
+PRIORS = ("synthetic", "rgbd", "mast3r", "twoview")
 
 
 @dataclass
@@ -58,7 +59,14 @@ class Source:
     name: str
 
 
-def _make_prior(name: str, sequence: Any) -> Any:
+def _make_prior(name: str, sequence: Any, use_calib: bool = False) -> Any:
+    if name == "twoview":
+        from mslam.priors.twoview import TwoViewPrior
+
+        if not use_calib:
+            return TwoViewPrior()  # focal-length guess (mslam.priors.twoview_geometry)
+        H, W = _first_readable(sequence, sequence.name or "source").shape
+        return TwoViewPrior(sequence.K, (W, H))
     if name == "synthetic":
         from mslam.priors.synthetic import SyntheticPrior
 
@@ -109,7 +117,8 @@ def open_source(
     if prior_name is None:
         raise ValueError(
             f"{source}: the frames have no depth, so neither the synthetic nor the rgbd prior "
-            "can make pointmaps; use --prior mast3r with your own MASt3R install and checkpoint"
+            "can make pointmaps; use --prior twoview (classical two-view geometry) or --prior "
+            "mast3r with your own MASt3R install and checkpoint"
         )
     if prior_name in ("synthetic", "rgbd") and not seq.has_depth:
         raise ValueError(
@@ -125,7 +134,7 @@ def open_source(
         seq = ResizedSequence(seq, w, h, (W, H))
     if max_frames is not None and max_frames < len(seq):
         seq = TruncatedSequence(seq, max_frames)
-    p = _make_prior(prior_name, seq)
+    p = _make_prior(prior_name, seq, use_calib)
     K = seq.K if use_calib else None
     if K is not None and hasattr(p, "network_intrinsics"):
         K = p.network_intrinsics(K, first)  # pointmaps come at the network resolution

@@ -1,0 +1,309 @@
+"""Two-view prior — MASt3R-like pointmaps from two RGB images by classical geometry (issue 15).
+
+For RGB-only input without a network (image folders, videos, the RGB stream of TUM/7-Scenes),
+``pair(i, j)`` reconstructs both images in camera i from the images alone
+(:mod:`mslam.priors.twoview_geometry` has the maths):
+
+1. dense flow ``F_ij``, ``F_ji`` (DIS) with a forward–backward check (``fb_px``);
+2. relative pose ``X_j = R_ji X_i + t_ji`` from the essential matrix (RANSAC on at most
+   ``max_ransac_points`` correspondences on a regular grid with forward–backward error below
+   ``pose_fb_px``), refined on all its inliers (robust Sampson least squares);
+3. the pair is **degenerate** — too few inliers (``min_inliers``) or consistent flow vectors
+   (``min_flow_frac``), or too little parallax
+   (:func:`homography_parallax` < ``min_parallax_px``: the flow is a homography that is a
+   rotation, which covers pure rotation and a tiny baseline, but not a plane seen from two
+   centres) — then no geometry is invented: the pointmaps are fronto-parallel planes,
+   ``C = 1`` everywhere and ``Q_ji = FAILED_Q``, so the match quality ``sqrt(Q_ii Q_ji)``
+   stays under upstream's ``Q_conf`` and tracking, edges and relocalisation reject the pair;
+4. otherwise every pixel of i (with ``F_ij``) and of j (with ``F_ji``) is triangulated in
+   camera i (midpoint); pixels that fail (occlusion, cheirality, flow leaving the image) get
+   the depth of the nearest triangulated pixel and ``C = 1``;
+5. the scale is arbitrary (``‖t_ji‖ = 1``) and normalised as MASt3R's outputs: both pointmaps
+   are divided by the median distance of their triangulated points to camera i's centre;
+6. ``C = 1 + conf_max · w_θ · w_r · w_fb`` with ``w_θ = 1 - exp(-(θ/angle_sigma)²)``
+   (triangulation angle θ), ``w_r = exp(-(r/reproj_sigma)²)`` (reprojection error r, pixels)
+   and ``w_fb = exp(-(e_fb/fb_sigma)²)`` (flow consistency);
+7. descriptors ``D`` and ``Q = 1 + q_gain tanh(contrast/q_contrast)`` are the patch
+   descriptors of the RGB-D prior.
+
+Intrinsics: ``K`` when calibrated (``--calib``), else :func:`focal_guess_intrinsics` (60°
+horizontal field of view). The SLAM system never sees this guess: in uncalibrated mode it only
+uses the pointmaps, exactly as with MASt3R.
+
+``mono(i)``: one image has no parallax, so there is no honest depth. The prior returns the
+most recent non-degenerate two-view pointmap it computed for that image (as i or as j, in its
+own camera, normalised) when it has one, else a fronto-parallel plane at distance 1 with
+``C = 1``. The frontend therefore does not start from ``mono`` with this prior
+(``needs_parallax = True``): it waits for the first pair with enough parallax (docs/priors.md).
+
+``last_status`` is ``"ok"``, ``"same"`` (i is j), ``"few_inliers"`` or ``"parallax"``;
+``last_info`` has the inlier count, the homography parallax (pixels) and the median
+triangulation angle (degrees) of the last pair; ``last_R_ji`` (3, 3) the rotation of a pair
+flagged ``"parallax"`` (well determined without parallax; the frontend poses such frames by
+rotation only), else None.
+
+Public names, in reading order:
+    TwoViewPriorConfig, TwoViewPrior
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from mslam.datasets.frame import Frame
+from mslam.priors.base import PairPrediction
+from mslam.priors.descriptors import DescriptorConfig, patch_descriptors
+from mslam.priors.rgbd import FAILED_Q, fill_depth
+from mslam.priors.twoview_geometry import (
+    dense_flow,
+    essential_pose,
+    focal_guess_intrinsics,
+    forward_backward_error,
+    homography_parallax,
+    refine_pose,
+    reprojection_error,
+    triangulate_midpoint,
+)
+from mslam_ref.conventions import FloatArray
+from mslam_ref.pointmap import backproject, scale_intrinsics
+
+__all__ = ["TwoViewPrior", "TwoViewPriorConfig"]
+
+
+@dataclass(frozen=True)
+class TwoViewPriorConfig:
+    """Parameters of the two-view prior (module docstring).
+
+    Attributes:
+        fb_px: forward–backward error (pixels) above which a correspondence is not used.
+        pose_fb_px: stricter forward–backward limit for the correspondences of the pose.
+        max_ransac_points: correspondences (grid subsample) given to the essential matrix.
+        ransac_px: RANSAC epipolar threshold (pixels).
+        min_inliers: fewer RANSAC inliers means a degenerate pair.
+        min_flow_frac: a pair whose share of pixels passing the forward–backward check (fb_px)
+            is lower is degenerate too (DIS breaks down under large motion and still returns
+            a few hundred self-consistent vectors).
+        min_parallax_px: homography parallax (pixels) below which a pair is degenerate.
+        max_reproj_px: triangulated pixels reprojecting worse than this are not used.
+        conf_max: ``C - 1`` of a perfect pixel.
+        angle_sigma_deg, reproj_sigma, fb_sigma: scales of ``w_θ`` (degrees), ``w_r``, ``w_fb``
+            (pixels).
+        q_gain, q_contrast: ``Q = 1 + q_gain tanh(contrast / q_contrast)``.
+        desc: patch-descriptor parameters.
+    """
+
+    fb_px: float = 1.0
+    pose_fb_px: float = 0.3
+    max_ransac_points: int = 2000
+    ransac_px: float = 1.0
+    min_inliers: int = 200
+    min_flow_frac: float = 0.3
+    min_parallax_px: float = 0.5
+    max_reproj_px: float = 2.0
+    conf_max: float = 20.0
+    angle_sigma_deg: float = 3.0
+    reproj_sigma: float = 1.0
+    fb_sigma: float = 0.5
+    q_gain: float = 6.0
+    q_contrast: float = 0.04
+    desc: DescriptorConfig = field(default_factory=DescriptorConfig)
+
+    def __post_init__(self) -> None:
+        positive = (
+            "fb_px",
+            "pose_fb_px",
+            "ransac_px",
+            "max_reproj_px",
+            "angle_sigma_deg",
+            "reproj_sigma",
+            "fb_sigma",
+            "q_contrast",
+        )
+        for name in positive:
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name}: must be > 0, got {getattr(self, name)}")
+        if self.min_inliers < 5 or self.max_ransac_points < self.min_inliers:
+            raise ValueError("min_inliers: must be >= 5 and <= max_ransac_points")
+        if self.min_parallax_px < 0 or self.conf_max < 0:
+            raise ValueError("min_parallax_px, conf_max: must be >= 0")
+
+
+class TwoViewPrior:
+    """MASt3R stand-in for RGB-only frames (module docstring).
+
+    Args:
+        K: (3, 3) intrinsics valid at ``image_size`` (calibrated), or None for the focal guess.
+        image_size: ``(W, H)`` at which ``K`` is valid (required with ``K``).
+        cfg: parameters.
+    """
+
+    #: The frontend waits for a pair with enough parallax before fixing the first keyframe.
+    needs_parallax = True
+
+    def __init__(
+        self,
+        K: FloatArray | None = None,
+        image_size: tuple[int, int] | None = None,
+        cfg: TwoViewPriorConfig = TwoViewPriorConfig(),
+    ) -> None:
+        if K is not None:
+            K = np.asarray(K, dtype=np.float64)
+            if K.shape != (3, 3) or image_size is None:
+                raise ValueError("K: expected (3, 3) intrinsics together with image_size (W, H)")
+        self.K, self.image_size, self.cfg = K, image_size, cfg
+        self.last_status = "none"
+        self.last_R_ji: FloatArray | None = None
+        self.last_info: dict[str, float] = {}
+        self._cache: OrderedDict[tuple, object] = OrderedDict()
+        self._views: OrderedDict[int, tuple[FloatArray, FloatArray]] = OrderedDict()
+
+    def K_for(self, frame: Frame) -> FloatArray:
+        """Intrinsics at the frame's resolution (the focal guess when uncalibrated)."""
+        H, W = frame.shape
+        if self.K is None:
+            return focal_guess_intrinsics(W, H)
+        if (W, H) == tuple(self.image_size):
+            return self.K
+        return scale_intrinsics(self.K, tuple(self.image_size), (W, H))
+
+    def _cached(self, key: tuple, fn):
+        if key not in self._cache:
+            self._cache[key] = fn()
+            if len(self._cache) > 64:
+                self._cache.popitem(last=False)
+        return self._cache[key]
+
+    def _desc(self, frame: Frame) -> tuple[FloatArray, FloatArray]:
+        key = ("desc", int(frame.index), hash(frame.rgb.tobytes()))
+        D, contrast = self._cached(key, lambda: patch_descriptors(frame.rgb, self.cfg.desc))
+        return D, 1.0 + self.cfg.q_gain * np.tanh(contrast / self.cfg.q_contrast)
+
+    # -- protocol ----------------------------------------------------------------------------
+    def mono(self, frame: Frame) -> tuple[FloatArray, FloatArray]:
+        """``X_ii (H, W, 3), C_ii (H, W)``: the last two-view pointmap of this image, else a
+        fronto-parallel plane at distance 1 with ``C = 1`` (module docstring)."""
+        view = self._views.get(int(frame.index))
+        if view is not None and view[0].shape[:2] == frame.shape:
+            return view[0].copy(), view[1].copy()
+        return self._plane(frame)
+
+    def _plane(self, frame: Frame) -> tuple[FloatArray, FloatArray]:
+        H, W = frame.shape
+        X = backproject(np.ones((H, W)), self.K_for(frame))
+        X /= np.median(np.linalg.norm(X, axis=-1))
+        return X, np.ones((H, W))
+
+    def pair(self, frame_i: Frame, frame_j: Frame) -> PairPrediction:
+        """Both pointmaps in camera i from flow, essential matrix and triangulation.
+
+        Sets ``last_status`` and ``last_info``. Shapes: X (H, W, 3), C/Q (H, W), D (H, W, F).
+        """
+        if frame_i.shape != frame_j.shape:
+            raise ValueError(f"frame_j: size {frame_j.shape} differs from frame_i {frame_i.shape}")
+        D_ii, Q_ii = self._desc(frame_i)
+        D_jj, Q_jj = self._desc(frame_j)
+        if frame_i.index == frame_j.index and np.array_equal(frame_i.rgb, frame_j.rgb):
+            X, C = self.mono(frame_i)
+            self.last_status, self.last_info = "same", {"inliers": 0, "parallax_px": 0.0}
+            return PairPrediction(X, C, D_ii, Q_ii, X.copy(), np.ones_like(C), D_jj, Q_jj)
+        geo = self.reconstruct(frame_i, frame_j)
+        if geo is None:
+            X_ii, C_ii = self._plane(frame_i)
+            X_ji, _ = self._plane(frame_j)
+            Q_fail = np.full_like(Q_jj, FAILED_Q)
+            return PairPrediction(X_ii, C_ii, D_ii, Q_ii, X_ji, np.ones_like(C_ii), D_jj, Q_fail)
+        X_ii, C_ii, X_ji, C_ji = geo
+        return PairPrediction(X_ii, C_ii, D_ii, Q_ii, X_ji, C_ji, D_jj, Q_jj)
+
+    # -- geometry ----------------------------------------------------------------------------
+    def reconstruct(self, frame_i: Frame, frame_j: Frame):
+        """``(X_ii, C_ii, X_ji, C_ji)`` in camera i, normalised, or None for a degenerate pair.
+
+        Also remembers each image's pointmap in its own camera for :meth:`mono`.
+        """
+        cfg = self.cfg
+        K = self.K_for(frame_i)
+        key = ("flow", hash(frame_i.rgb.tobytes()), hash(frame_j.rgb.tobytes()))
+        F_ij, F_ji = self._cached(key, lambda: dense_flow(frame_i.rgb, frame_j.rgb))
+        self.last_R_ji = None
+        R, t, n_inl, parallax, angle = self._pose(F_ij, F_ji, K)
+        self.last_info = {"inliers": n_inl, "parallax_px": parallax, "angle_deg": angle}
+        if n_inl < cfg.min_inliers:
+            self.last_status = "few_inliers"
+            return None
+        if parallax < cfg.min_parallax_px:
+            self.last_status, self.last_R_ji = "parallax", R
+            return None
+        X_ii, C_ii, ok_i = self._view(F_ij, F_ji, K, R, t, forward=True)
+        X_ji, C_ji, ok_j = self._view(F_ji, F_ij, K, R, t, forward=False)
+        dist = np.concatenate([np.linalg.norm(X_ii[ok_i], axis=-1),
+                               np.linalg.norm(X_ji[ok_j], axis=-1)])  # fmt: skip
+        if min(ok_i.sum(), ok_j.sum()) < cfg.min_inliers or not np.median(dist) > 0:
+            self.last_status = "few_inliers"  # too few pixels triangulate in one image
+            return None
+        s = 1.0 / np.median(dist)
+        X_ii, X_ji = X_ii * s, X_ji * s
+        if not (np.all(np.isfinite(X_ii)) and np.all(np.isfinite(X_ji))):
+            self.last_status = "few_inliers"
+            return None
+        self.last_status = "ok"
+        self._remember(frame_i, X_ii, C_ii)
+        self._remember(frame_j, X_ji @ R.T + s * t, C_ji)  # X_jj = R_ji X_ji + s t_ji
+        return X_ii, C_ii, X_ji, C_ji
+
+    def _remember(self, frame: Frame, X: FloatArray, C: FloatArray) -> None:
+        X = X / np.median(np.linalg.norm(X, axis=-1))
+        self._views[int(frame.index)] = (X, C)
+        self._views.move_to_end(int(frame.index))
+        if len(self._views) > 256:
+            self._views.popitem(last=False)
+
+    def _pose(self, F_ij: FloatArray, F_ji: FloatArray, K: FloatArray):
+        """RANSAC essential matrix on grid-subsampled consistent flow; returns
+        ``R_ji, t_ji, n_inliers, parallax (pixels), median triangulation angle (degrees)``."""
+        e_fb, _ = forward_backward_error(F_ij, F_ji)
+        if np.mean(e_fb < self.cfg.fb_px) < self.cfg.min_flow_frac:
+            return np.eye(3), np.zeros(3), 0, 0.0, 0.0
+        good = e_fb < self.cfg.pose_fb_px
+        step = max(1, int(np.sqrt(good.sum() / self.cfg.max_ransac_points)))
+        sub = np.zeros_like(good)
+        sub[step // 2 :: step, step // 2 :: step] = True
+        v, u = np.nonzero(good & sub)
+        uv_i = np.stack([u, v], -1).astype(np.float64)
+        uv_j = uv_i + F_ij[v, u]
+        if len(uv_i) < self.cfg.min_inliers:
+            return np.eye(3), np.zeros(3), 0, 0.0, 0.0
+        R, t, inl = essential_pose(uv_i, uv_j, K, self.cfg.ransac_px)
+        if inl.sum() < self.cfg.min_inliers:
+            return R, t, int(inl.sum()), 0.0, 0.0
+        R, t = refine_pose(uv_i[inl], uv_j[inl], K, R, t)
+        parallax = homography_parallax(uv_i, uv_j, K, self.cfg.ransac_px)
+        _, angle, ok = triangulate_midpoint(uv_i[inl], uv_j[inl], K, R, t)
+        angle_deg = float(np.degrees(np.median(np.where(ok, angle, 0.0))))
+        return R, t, int(inl.sum()), parallax, angle_deg
+
+    def _view(self, F_ab, F_ba, K, R, t, forward: bool):
+        """Triangulate every pixel of image a (i when ``forward``, else j) with flow ``F_ab``;
+        returns its pointmap in camera i (H, W, 3), confidence (H, W) and validity (H, W)."""
+        cfg = self.cfg
+        H, W = F_ab.shape[:2]
+        e_fb, inside = forward_backward_error(F_ab, F_ba)
+        u, v = np.meshgrid(np.arange(W, dtype=np.float64), np.arange(H, dtype=np.float64))
+        uv_a = np.stack([u, v], -1)
+        uv_b = uv_a + F_ab
+        uv_i, uv_j = (uv_a, uv_b) if forward else (uv_b, uv_a)
+        X_i, angle, ok = triangulate_midpoint(uv_i, uv_j, K, R, t)
+        r = reprojection_error(X_i, uv_i, uv_j, K, R, t)
+        ok &= inside & (e_fb < cfg.fb_px) & (r < cfg.max_reproj_px)
+        w_ang = 1.0 - np.exp(-((np.degrees(angle) / cfg.angle_sigma_deg) ** 2))
+        w_r = np.exp(-((np.where(ok, r, 0.0) / cfg.reproj_sigma) ** 2))
+        w_fb = np.exp(-((np.where(ok, e_fb, 0.0) / cfg.fb_sigma) ** 2))
+        C = np.where(ok, 1.0 + cfg.conf_max * w_ang * w_r * w_fb, 1.0)
+        X_a = X_i if forward else X_i @ R.T + t  # in camera a
+        z, _ = fill_depth(np.where(ok, X_a[..., 2], 0.0), default=1.0)
+        X_a = backproject(z, K)
+        X_i_out = X_a if forward else (X_a - t) @ R  # X_i = R_jiᵀ (X_j - t_ji)
+        return X_i_out, C, ok

@@ -1,0 +1,335 @@
+"""Two-view geometry for the classical prior — dense flow, essential matrix, triangulation.
+
+The maths of :mod:`mslam.priors.twoview`, image pair (i, j) with intrinsics K:
+
+* dense correspondences ``u_j = u_i + F_ij(u_i)`` from OpenCV's DIS optical flow, checked
+  forward–backward: ``e_fb(u_i) = ‖F_ij(u_i) + F_ji(u_i + F_ij(u_i))‖`` (pixels);
+* the essential matrix ``x_jᵀ E x_i = 0`` (``x = K⁻¹[u, 1]``) by RANSAC on a subsample of the
+  consistent correspondences, decomposed into ``X_j = R_ji X_i + t_ji`` with ``‖t_ji‖ = 1``
+  (cheirality decides among the four solutions);
+* midpoint triangulation in camera i: rays ``a = K⁻¹[u_i, 1]`` from the origin and
+  ``b = R_jiᵀ K⁻¹[u_j, 1]`` from the centre ``c_j = -R_jiᵀ t_ji``; depths (λ, μ) minimise
+  ``‖λ a - (c_j + μ b)‖²``, the point is the midpoint; the triangulation angle is ∠(a, b);
+* parallax of the pair from the best homography H (RANSAC), not from the essential matrix,
+  whose translation (and so the triangulation angle) is noise when the baseline is tiny: the
+  residuals ``‖u_j - H u_i‖`` (a non-planar scene) and the departure of ``K⁻¹ H K`` from a
+  rotation (a plane seen from two centres). Pure rotation and a tiny baseline give ~0 for both.
+
+Public names, in reading order:
+    focal_guess_intrinsics, dense_flow, forward_backward_error, essential_pose,
+    sampson_residuals, refine_pose, homography_parallax, triangulate_midpoint, reprojection_error
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from mslam_ref.conventions import FloatArray
+
+__all__ = [
+    "dense_flow",
+    "essential_pose",
+    "focal_guess_intrinsics",
+    "forward_backward_error",
+    "homography_parallax",
+    "refine_pose",
+    "reprojection_error",
+    "sampson_residuals",
+    "triangulate_midpoint",
+]
+
+#: Horizontal field of view assumed when no calibration is given (degrees). 60° is the middle
+#: of the usual webcam / phone / Kinect range (Kinect v1: 57°, TUM fr1: 63°, phones: 60–70°).
+GUESS_FOV_DEG = 60.0
+
+
+def focal_guess_intrinsics(width: int, height: int, fov_deg: float = GUESS_FOV_DEG) -> FloatArray:
+    """Pinhole K of an uncalibrated camera: ``f = (W / 2) / tan(fov / 2)``, centred.
+
+    Args:
+        width, height: image size in pixels (>= 2).
+        fov_deg: assumed horizontal field of view (default 60°: ``f ≈ 0.866 W``).
+
+    Returns:
+        (3, 3) float64, ``cx = (W - 1) / 2``, ``cy = (H - 1) / 2``, square pixels.
+    """
+    if int(width) < 2 or int(height) < 2:
+        raise ValueError(f"width, height: must be >= 2, got {width}x{height}")
+    if not 1.0 < fov_deg < 170.0:
+        raise ValueError(f"fov_deg: must be in (1, 170), got {fov_deg}")
+    f = (width / 2.0) / np.tan(np.deg2rad(fov_deg) / 2.0)
+    return np.array([[f, 0.0, (width - 1) / 2.0], [0.0, f, (height - 1) / 2.0], [0.0, 0.0, 1.0]])
+
+
+def _grey(rgb: np.ndarray) -> np.ndarray:
+    rgb = np.asarray(rgb)
+    if rgb.dtype != np.uint8 or rgb.ndim != 3 or rgb.shape[2] != 3:
+        raise ValueError(f"rgb: expected uint8 (H, W, 3), got {rgb.dtype} {rgb.shape}")
+    return cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
+
+
+def dense_flow(rgb_i: np.ndarray, rgb_j: np.ndarray) -> tuple[FloatArray, FloatArray]:
+    """Forward and backward DIS optical flow (preset MEDIUM) between two RGB images.
+
+    Args:
+        rgb_i, rgb_j: (H, W, 3) uint8 images of the same size.
+
+    Returns:
+        F_ij: (H, W, 2) float64, pixel ``u`` of i corresponds to ``u + F_ij(u)`` in j;
+        F_ji: (H, W, 2) float64, the reverse.
+    """
+    gi, gj = _grey(rgb_i), _grey(rgb_j)
+    if gi.shape != gj.shape:
+        raise ValueError(f"rgb_j: size {gj.shape} differs from rgb_i {gi.shape}")
+    dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
+    F_ij = dis.calc(gi, gj, None)
+    F_ji = dis.calc(gj, gi, None)
+    return F_ij.astype(np.float64), F_ji.astype(np.float64)
+
+
+def _grid(H: int, W: int) -> FloatArray:
+    u, v = np.meshgrid(np.arange(W, dtype=np.float64), np.arange(H, dtype=np.float64))
+    return np.stack([u, v], axis=-1)
+
+
+def forward_backward_error(F_ij: FloatArray, F_ji: FloatArray) -> tuple[FloatArray, np.ndarray]:
+    """Forward–backward consistency ``e = ‖F_ij(u) + F_ji(u + F_ij(u))‖`` (bilinear lookup).
+
+    Args:
+        F_ij, F_ji: (H, W, 2) flows.
+
+    Returns:
+        e: (H, W) pixels (``inf`` where ``u + F_ij(u)`` leaves image j);
+        inside: (H, W) bool, whether ``u + F_ij(u)`` lies in image j.
+    """
+    H, W = F_ij.shape[:2]
+    target = _grid(H, W) + F_ij
+    inside = (
+        (target[..., 0] >= 0)
+        & (target[..., 0] <= W - 1)
+        & (target[..., 1] >= 0)
+        & (target[..., 1] <= H - 1)
+    )
+    m = target.astype(np.float32)
+    back = cv2.remap(F_ji.astype(np.float32), m[..., 0], m[..., 1], cv2.INTER_LINEAR,
+                     borderMode=cv2.BORDER_REPLICATE)  # fmt: skip
+    e = np.linalg.norm(F_ij + back.astype(np.float64), axis=-1)
+    return np.where(inside, e, np.inf), inside
+
+
+def essential_pose(
+    uv_i: FloatArray,
+    uv_j: FloatArray,
+    K: FloatArray,
+    ransac_px: float = 1.0,
+    confidence: float = 0.999,
+) -> tuple[FloatArray, FloatArray, np.ndarray]:
+    """Relative pose ``X_j = R_ji X_i + t_ji`` (``‖t_ji‖ = 1``) from correspondences, RANSAC.
+
+    Args:
+        uv_i, uv_j: (N, 2) corresponding pixels (N >= 5).
+        K: (3, 3) intrinsics shared by both images.
+        ransac_px: RANSAC threshold (pixels, on the epipolar distance).
+        confidence: RANSAC confidence.
+
+    Returns:
+        R_ji (3, 3), t_ji (3,), inliers (N,) bool (RANSAC inliers that also pass cheirality).
+        On failure (no model) the identity, zeros and an all-False mask.
+    """
+    uv_i = np.ascontiguousarray(uv_i, dtype=np.float64).reshape(-1, 2)
+    uv_j = np.ascontiguousarray(uv_j, dtype=np.float64).reshape(-1, 2)
+    n = len(uv_i)
+    fail = (np.eye(3), np.zeros(3), np.zeros(n, bool))
+    if n < 5 or len(uv_j) != n:
+        return fail
+    try:
+        E, mask = cv2.findEssentialMat(uv_i, uv_j, K, cv2.RANSAC, confidence, ransac_px)
+    except cv2.error:
+        return fail
+    if E is None or E.shape != (3, 3) or mask is None:
+        return fail  # several solutions (a (3k, 3) stack) are rare; treat as failure
+    try:
+        # distanceThresh: points farther than this (in units of the baseline) count as at
+        # infinity and fail cheirality; with small baselines most points are > 50 baselines
+        # away (OpenCV's default of the short overload), so allow 1e4.
+        _, R, t, pose_mask, _ = cv2.recoverPose(
+            E, uv_i, uv_j, K, distanceThresh=1e4, mask=mask.copy()
+        )
+    except cv2.error:
+        return fail
+    inl = pose_mask.ravel() > 0
+    if not (np.all(np.isfinite(R)) and np.all(np.isfinite(t))):
+        return fail
+    return R.astype(np.float64), t.ravel().astype(np.float64), inl
+
+
+def sampson_residuals(
+    uv_i: FloatArray, uv_j: FloatArray, K: FloatArray, R_ji: FloatArray, t_ji: FloatArray
+) -> FloatArray:
+    """Signed Sampson distances (pixels) of correspondences to the epipolar geometry.
+
+    ``F = K⁻ᵀ [t]ₓ R K⁻¹``, ``r = x_jᵀ F x_i / sqrt((F x_i)₁² + (F x_i)₂² + (Fᵀx_j)₁² + (Fᵀx_j)₂²)``
+    with homogeneous pixels ``x``.
+
+    Args:
+        uv_i, uv_j: (N, 2). K: (3, 3). R_ji (3, 3), t_ji (3,).
+
+    Returns:
+        (N,) residuals.
+    """
+    tx = np.array([[0, -t_ji[2], t_ji[1]], [t_ji[2], 0, -t_ji[0]], [-t_ji[1], t_ji[0], 0]])
+    Kinv = np.linalg.inv(K)
+    F = Kinv.T @ tx @ R_ji @ Kinv
+    ones = np.ones((len(uv_i), 1))
+    xi, xj = np.hstack([uv_i, ones]), np.hstack([uv_j, ones])
+    Fxi, Ftxj = xi @ F.T, xj @ F
+    num = (xj * Fxi).sum(-1)
+    den = np.sqrt(Fxi[:, 0] ** 2 + Fxi[:, 1] ** 2 + Ftxj[:, 0] ** 2 + Ftxj[:, 1] ** 2)
+    return num / np.maximum(den, 1e-12)
+
+
+def refine_pose(
+    uv_i: FloatArray,
+    uv_j: FloatArray,
+    K: FloatArray,
+    R_ji: FloatArray,
+    t_ji: FloatArray,
+    huber_px: float = 0.3,
+) -> tuple[FloatArray, FloatArray]:
+    """Refine ``(R_ji, t_ji)`` on all inliers: robust least squares on Sampson distances.
+
+    RANSAC's model is fitted to 5 correspondences; with small baselines its rotation and
+    translation trade off against each other. Parameters: a rotation increment ``ω``
+    (``R = Exp(ω) R₀``) and two coordinates ``a`` of ``t = normalize(t₀ + B a)``, B (3, 2) an
+    orthonormal basis of the plane orthogonal to ``t₀`` (the length of t is not observable).
+    Huber loss with ``huber_px``.
+
+    Args:
+        uv_i, uv_j: (N, 2) inlier correspondences. K: (3, 3). R_ji (3, 3), t_ji (3,).
+
+    Returns:
+        R_ji (3, 3), t_ji (3,) with ``‖t_ji‖ = 1`` (the input when the solver fails).
+    """
+    from scipy.optimize import least_squares
+    from scipy.spatial.transform import Rotation
+
+    t0 = t_ji / np.linalg.norm(t_ji)
+    B = np.linalg.svd(t0[None, :])[2][1:].T
+
+    def unpack(p):
+        t = t0 + B @ p[3:]
+        return Rotation.from_rotvec(p[:3]).as_matrix() @ R_ji, t / np.linalg.norm(t)
+
+    try:
+        res = least_squares(
+            lambda p: sampson_residuals(uv_i, uv_j, K, *unpack(p)),
+            np.zeros(5),
+            loss="huber",
+            f_scale=huber_px,
+        )
+    except (ValueError, np.linalg.LinAlgError):
+        return R_ji, t0
+    if not np.all(np.isfinite(res.x)):
+        return R_ji, t0
+    return unpack(res.x)
+
+
+def homography_parallax(
+    uv_i: FloatArray,
+    uv_j: FloatArray,
+    K: FloatArray,
+    ransac_px: float = 1.0,
+    plane_margin_px: float = 1.0,
+) -> float:
+    """Parallax of a pair in pixels: how far the flow is from a pure rotation.
+
+    The best homography H (RANSAC) explains the flow of a pure rotation
+    (``K⁻¹ H K = R``), of a tiny baseline, and of a plane seen from two centres
+    (``K⁻¹ H K = R + t nᵀ/d``). Two terms, the larger is returned:
+
+    * off-homography parallax: 90th percentile of ``‖u_j - H u_i‖`` (a non-planar scene);
+    * plane parallax: ``f · (σ₁ - σ₃) / σ₂ - plane_margin_px`` with σ the singular values of
+      ``K⁻¹ H K``, which are equal for a rotation and differ by about ``‖t‖/d`` for a plane at
+      distance d. H fitted to DIS flow is noisy at the image borders: a pure 3° rotation at
+      128x96 gives ``f · (σ₁ - σ₃) / σ₂ ≈ 0.6 px``, hence the margin.
+
+    Args:
+        uv_i, uv_j: (N, 2) corresponding pixels (N >= 4; fewer gives 0).
+        K: (3, 3) intrinsics (the focal-length guess when uncalibrated).
+
+    Returns:
+        pixels (0 when no homography can be fitted).
+    """
+    uv_i = np.ascontiguousarray(uv_i, dtype=np.float64).reshape(-1, 2)
+    uv_j = np.ascontiguousarray(uv_j, dtype=np.float64).reshape(-1, 2)
+    if len(uv_i) < 4:
+        return 0.0
+    try:
+        H, _ = cv2.findHomography(uv_i, uv_j, cv2.RANSAC, ransac_px)
+    except cv2.error:
+        return 0.0
+    if H is None or not np.all(np.isfinite(H)):
+        return 0.0
+    p = np.hstack([uv_i, np.ones((len(uv_i), 1))]) @ H.T
+    w = np.where(np.abs(p[:, 2:]) > 1e-12, p[:, 2:], 1e-12)
+    off_plane = float(np.percentile(np.linalg.norm(p[:, :2] / w - uv_j, axis=1), 90))
+    sv = np.linalg.svd(np.linalg.inv(K) @ H @ K, compute_uv=False)
+    plane = float(0.5 * (K[0, 0] + K[1, 1]) * (sv[0] - sv[2]) / max(sv[1], 1e-12))
+    return max(off_plane, plane - plane_margin_px)
+
+
+def triangulate_midpoint(
+    uv_i: FloatArray, uv_j: FloatArray, K: FloatArray, R_ji: FloatArray, t_ji: FloatArray
+) -> tuple[FloatArray, FloatArray, np.ndarray]:
+    """Midpoint triangulation of correspondences, in camera i (module docstring).
+
+    Args:
+        uv_i, uv_j: (..., 2) corresponding pixels.
+        K: (3, 3). R_ji (3, 3), t_ji (3,): ``X_j = R_ji X_i + t_ji``.
+
+    Returns:
+        X_i: (..., 3) points in camera i (0 where not triangulable);
+        angle: (...,) triangulation angle ∠(a, b) in radians;
+        ok: (...,) bool, both depths > 0 and the rays not parallel (angle > 1e-6).
+    """
+    Kinv = np.linalg.inv(K)
+    ones = np.ones((*uv_i.shape[:-1], 1))
+    a = np.concatenate([uv_i, ones], -1) @ Kinv.T
+    b = (np.concatenate([uv_j, ones], -1) @ Kinv.T) @ R_ji  # R_jiᵀ x_j, row form
+    c = -(R_ji.T @ t_ji)
+    aa, bb, ab = (a * a).sum(-1), (b * b).sum(-1), (a * b).sum(-1)
+    ac, bc = a @ c, b @ c
+    det = aa * bb - ab * ab  # >= 0, 0 for parallel rays
+    safe = np.where(det > 1e-12 * aa * bb, det, 1.0)
+    lam = (ac * bb - ab * bc) / safe
+    mu = (ab * ac - aa * bc) / safe
+    X = 0.5 * (lam[..., None] * a + c + mu[..., None] * b)
+    cosang = ab / np.sqrt(aa * bb)
+    angle = np.arccos(np.clip(cosang, -1.0, 1.0))
+    ok = (det > 1e-12 * aa * bb) & (lam > 0) & (mu > 0) & (angle > 1e-6)
+    return np.where(ok[..., None], X, 0.0), angle, ok
+
+
+def reprojection_error(
+    X_i: FloatArray,
+    uv_i: FloatArray,
+    uv_j: FloatArray,
+    K: FloatArray,
+    R_ji: FloatArray,
+    t_ji: FloatArray,
+) -> FloatArray:
+    """Larger of the two pixel reprojection errors of points ``X_i`` (..., 3) in camera i.
+
+    Returns:
+        (...,) pixels; ``inf`` where the point is not in front of both cameras.
+    """
+    X_j = X_i @ R_ji.T + t_ji
+    out = np.full(X_i.shape[:-1], np.inf)
+    front = (X_i[..., 2] > 1e-9) & (X_j[..., 2] > 1e-9)
+    err = np.zeros_like(out)
+    for X, uv in ((X_i, uv_i), (X_j, uv_j)):
+        z = np.where(front, X[..., 2], 1.0)
+        p = (X[..., :2] / z[..., None]) * K[[0, 1], [0, 1]] + K[:2, 2]
+        err = np.maximum(err, np.linalg.norm(p - uv, axis=-1))
+    return np.where(front, err, out)
