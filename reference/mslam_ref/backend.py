@@ -4,14 +4,12 @@ Every graph edge (i, j) holds matches both ways; it gives two *directed blocks*.
 (i <- j) loops over the pixels k of keyframe j, moves their canonical points into camera i
 with ``T_ij = T_WCi^-1 T_WCj`` and compares them with the canonical point of the matched
 pixel ``m = idx[k]`` of keyframe i: a ray + distance error without calibration, a pixel +
-log-depth error with known K (paper Eq. 9 and Eq. 10). Only poses are optimised (pointmaps are fixed).
-Each block contributes a 14x14 Hessian block ``[[H_ii, H_ij], [H_ji, H_jj]]`` and gradient
-``[g_i, g_j]``; they are summed into a sparse 7(K'-1) system over the K' keyframes in the
-graph, the first of which is held fixed (the gauge), solved by Cholesky and applied by left
-retraction, ten times (paper §3.5: "at most 10 iterations"; docs/tracking_backend.md).
-Without the fixed pose the Hessian would have 7 zero eigenvalues (a Sim(3) of the whole map
-changes no residual): that is the gauge freedom the paper removes "by fixing the first 7-DoF
-Sim(3) pose".
+log-depth error with known K (paper Eq. 9, 10). Only poses are optimised. Each block gives a
+14x14 Hessian block ``[[H_ii, H_ij], [H_ji, H_jj]]`` and gradient ``[g_i, g_j]``, summed into
+a sparse 7(K'-1) system over the K' keyframes in the graph; the first is held fixed (the
+gauge: without it the Hessian has 7 zero eigenvalues, as a Sim(3) of the whole map changes
+no residual), and the system is solved by Cholesky and applied by left retraction, at most
+10 times (paper §3.5; docs/tracking_backend.md).
 
 Sign convention (gn_kernels.cu): ``e = prediction - measurement``, ``J = de/dxi`` for left
 perturbations of the *world* poses, ``g = J^T W e`` and the step ``dx = -H^-1 g``.

@@ -18,7 +18,7 @@ loop; the two callers pass those three pieces in.
         stop if converged(old_cost, cost, dx)
         old_cost = cost
 
-Public names, in reading order: GNTrace, gauss_newton, cholesky_step.
+Public names, in reading order: GNTrace, gauss_newton, cholesky_step, small_change.
 """
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ import numpy as np
 
 from mslam_ref.conventions import FloatArray
 
-__all__ = ["GNTrace", "cholesky_step", "gauss_newton"]
+__all__ = ["GNTrace", "cholesky_step", "gauss_newton", "small_change"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -120,3 +120,23 @@ def cholesky_step(H: Any, g: Any) -> FloatArray | None:
     except np.linalg.LinAlgError:
         return None
     return tau if np.all(np.isfinite(tau)) else None
+
+
+def small_change(rel_error: float, delta_norm: float) -> StopFn:
+    """Upstream tracking's stopping rule, as a ``converged`` argument of :func:`gauss_newton`:
+    stop when ``|(old_cost - cost) / old_cost| < rel_error`` or ``|dx| < delta_norm``.
+
+    The costs are the *pre-update* ones; at the first step (``old_cost = inf``) only ``|dx|``
+    can stop. Where upstream would divide 0 by 0 (two zero costs) it reports convergence.
+    """
+
+    def converged(old_cost: float, cost: float, dx: FloatArray) -> bool:
+        if math.isinf(old_cost):
+            rel = math.nan
+        elif old_cost == 0.0:
+            rel = 0.0
+        else:
+            rel = abs((old_cost - cost) / old_cost)
+        return rel < rel_error or float(np.linalg.norm(dx)) < delta_norm
+
+    return converged

@@ -12,8 +12,8 @@ and centre crop (the image operations themselves, which need OpenCV, live in the
 application's ``mslam.datasets.images``) and the network's input normalisation to [-1, 1].
 
 Public functions, in reading order:
-    check_K, pixel_grid, camera_rays, backproject, project, normalize_rays, scale_intrinsics,
-    intrinsics_after_resize, network_input
+    check_K, intrinsics_from_fov, pixel_grid, camera_rays, backproject, project, normalize_rays,
+    scale_intrinsics, intrinsics_after_resize, network_input
 """
 
 from __future__ import annotations
@@ -28,6 +28,7 @@ __all__ = [
     "backproject",
     "camera_rays",
     "check_K",
+    "intrinsics_from_fov",
     "intrinsics_after_resize",
     "network_input",
     "normalize_rays",
@@ -48,6 +49,23 @@ def check_K(K: Any) -> FloatArray:
 def _check_size(H: int, W: int) -> None:
     if int(H) < 1 or int(W) < 1:
         raise ValueError(f"image size: H and W must be positive, got H={H}, W={W}")
+
+
+def intrinsics_from_fov(width: int, height: int, fov_deg: float) -> FloatArray:
+    """Pinhole intrinsics with horizontal field of view ``fov_deg`` and square pixels.
+
+    ``fx = fy = (W / 2) / tan(fov / 2)``, ``cx = (W - 1) / 2``, ``cy = (H - 1) / 2`` (the centre
+    of the image under the pixel-centre convention, as upstream's re-centred ``K_opt``).
+
+    Returns:
+        (3, 3) float64.
+    """
+    if int(width) < 2 or int(height) < 2:
+        raise ValueError(f"width, height: must be >= 2, got {width}x{height}")
+    if not 1.0 < fov_deg < 170.0:
+        raise ValueError(f"fov_deg: must be in (1, 170), got {fov_deg}")
+    f = (width / 2.0) / np.tan(np.deg2rad(fov_deg) / 2.0)
+    return np.array([[f, 0.0, (width - 1) / 2.0], [0.0, f, (height - 1) / 2.0], [0.0, 0.0, 1.0]])
 
 
 def pixel_grid(H: int, W: int) -> FloatArray:

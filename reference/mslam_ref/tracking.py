@@ -12,8 +12,8 @@ retraction, paper Eq. 1).
 Weights. The paper divides each residual by ``w(q, sigma^2) = sigma^2 / q`` (Eq. 5), i.e. it
 treats ``sigma^2 / q`` as the *variance* of the residual. Whitening by the square root of the
 information, ``r -> sqrt(q)/sigma · r``, gives exactly the IRLS weight ``W = q / sigma^2`` in
-``J^T W J`` of Eq. (7); that is what the code (and upstream) does. Matches with
-matches whose confidence ``Q <= Q_conf`` get weight 0 (the paper's ``w = inf``). See docs/tracking_backend.md.
+``J^T W J`` of Eq. (7); that is what the code (and upstream) does. Matches whose confidence
+``Q <= Q_conf`` get weight 0 (the paper's ``w = inf``). See docs/tracking_backend.md.
 
 Sign convention (tracker.py): ``r = z - h(T)``, ``J = dr/dxi = -dh/dxi``, ``H = A^T A``,
 ``g = -A^T b`` with ``A = a J``, ``b = a r`` and ``a`` the robust sqrt information.
@@ -27,7 +27,6 @@ Public names, in reading order:
 from __future__ import annotations
 
 import dataclasses
-import math
 from collections.abc import Callable
 from typing import Any
 
@@ -44,7 +43,7 @@ from mslam_ref.conventions import (
     as_float_array,
     as_points,
 )
-from mslam_ref.gauss_newton import cholesky_step, gauss_newton
+from mslam_ref.gauss_newton import cholesky_step, gauss_newton, small_change
 from mslam_ref.pointmap import check_K
 
 __all__ = [
@@ -331,18 +330,6 @@ def linearize(
 LinearizeFn = Callable[..., tuple[FloatArray, FloatArray, float]]
 
 
-def _converged(old_cost: float, cost: float, tau: FloatArray, cfg: TrackingConfig) -> bool:
-    """Upstream's test on the *pre-update* costs; at step 0 (old_cost = inf) only |tau| can
-    stop. Where upstream would divide 0 by 0 (two zero costs) we report convergence."""
-    if math.isinf(old_cost):
-        rel = math.nan
-    elif old_cost == 0.0:
-        rel = 0.0
-    else:
-        rel = abs((old_cost - cost) / old_cost)
-    return rel < cfg.rel_error or float(np.linalg.norm(tau)) < cfg.delta_norm
-
-
 def solve_with(
     linearize_fn: LinearizeFn,
     X_f: Any,
@@ -365,7 +352,7 @@ def solve_with(
         return cholesky_step(H, g), cost
 
     T, trace = gauss_newton(
-        T0, step, sim3.retract, lambda old, c, tau: _converged(old, c, tau, cfg), cfg.max_iters
+        T0, step, sim3.retract, small_change(cfg.rel_error, cfg.delta_norm), cfg.max_iters
     )
     last = trace.costs[-1] if trace.costs else 0.0
     info = TrackingInfo(trace.iterations, last, trace.converged, trace.aborted, trace.costs)

@@ -26,6 +26,7 @@ import cv2
 import numpy as np
 
 from mslam_ref.conventions import FloatArray
+from mslam_ref.pointmap import intrinsics_from_fov
 
 __all__ = [
     "dense_flow",
@@ -54,12 +55,7 @@ def focal_guess_intrinsics(width: int, height: int, fov_deg: float = GUESS_FOV_D
     Returns:
         (3, 3) float64, ``cx = (W - 1) / 2``, ``cy = (H - 1) / 2``, square pixels.
     """
-    if int(width) < 2 or int(height) < 2:
-        raise ValueError(f"width, height: must be >= 2, got {width}x{height}")
-    if not 1.0 < fov_deg < 170.0:
-        raise ValueError(f"fov_deg: must be in (1, 170), got {fov_deg}")
-    f = (width / 2.0) / np.tan(np.deg2rad(fov_deg) / 2.0)
-    return np.array([[f, 0.0, (width - 1) / 2.0], [0.0, f, (height - 1) / 2.0], [0.0, 0.0, 1.0]])
+    return intrinsics_from_fov(width, height, fov_deg)
 
 
 def _grey(rgb: np.ndarray) -> np.ndarray:

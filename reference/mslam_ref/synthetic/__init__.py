@@ -14,9 +14,8 @@ Public names, in reading order:
 
 from __future__ import annotations
 
-import numpy as np
-
 from mslam_ref.conventions import FloatArray
+from mslam_ref.pointmap import intrinsics_from_fov
 from mslam_ref.synthetic.paths import PATHS, camera_path, jump_indices
 from mslam_ref.synthetic.scene import Scene, cast_rays, make_scene, render
 
@@ -61,9 +60,4 @@ def intrinsics(width: int, height: int, fov_deg: float = 70.0) -> FloatArray:
     Returns:
         (3, 3) float64.
     """
-    if int(width) < 2 or int(height) < 2:
-        raise ValueError(f"width, height: must be >= 2, got {width}x{height}")
-    if not 1.0 < fov_deg < 170.0:
-        raise ValueError(f"fov_deg: must be in (1, 170), got {fov_deg}")
-    f = (width / 2.0) / np.tan(np.deg2rad(fov_deg) / 2.0)
-    return np.array([[f, 0.0, (width - 1) / 2.0], [0.0, f, (height - 1) / 2.0], [0.0, 0.0, 1.0]])
+    return intrinsics_from_fov(width, height, fov_deg)
