@@ -10,7 +10,7 @@ Modules, in reading order:
 
 * :mod:`~mslam.system.sources` — SOURCE → frames, calibration, prior (checked up front);
 * :mod:`~mslam.system.frontend` — :class:`SlamSystem`: modes, tracking, fusion, keyframes;
-* :mod:`~mslam.system.backend_step` — graph construction and the global solve;
+* :mod:`~mslam.system.global_opt` — graph construction and the global solve;
 * :mod:`mslam.system.reloc` — relocalisation; :mod:`mslam.system.graph` — keyframes and edges;
 * :mod:`~mslam.system.outputs` — trajectory, keyframes, PLY, summary, plot.
 

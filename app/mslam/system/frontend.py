@@ -44,7 +44,7 @@ from mslam.config import SlamConfig
 from mslam.datasets.frame import Frame
 from mslam.kernels import KernelSet
 from mslam.system import parallax
-from mslam.system.backend_step import add_keyframe_edges, solve_backend
+from mslam.system.global_opt import add_keyframe_edges, solve_backend
 from mslam.system.graph import FactorGraph, Keyframe, KeyframeStore
 from mslam.system.retrieval_features import RetrievalIndex
 from mslam.system.state import FramePose, Mode, RunStats

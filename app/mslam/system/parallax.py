@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from mslam.datasets.frame import Frame
-from mslam.system.backend_step import add_keyframe_edges, solve_backend
+from mslam.system.global_opt import add_keyframe_edges, solve_backend
 from mslam.system.state import Mode
 from mslam_ref import sim3, so3
 

@@ -45,7 +45,7 @@ def relocalise(system: Any, frame: Frame) -> bool:
     Returns:
         whether the frame was relocalised.
     """
-    from mslam.system.backend_step import solve_backend
+    from mslam.system.global_opt import solve_backend
 
     with system.timer("prior"):
         X, C = system.prior.mono(frame)
