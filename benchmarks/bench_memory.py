@@ -71,7 +71,7 @@ def main() -> None:
         + f"\n\nLinear fit: **{slope:.2f} MiB per keyframe** at {args.size}, an upper bound: the "
         "fit gives the keyframes what the frames between them cost too (per-frame records, the "
         f"prior's caches up to their byte bound). Intercept "
-        f"{intercept:.0f} MiB: Python, NumPy, Taichi and the compiled kernels). A keyframe's own "
+        f"{intercept:.0f} MiB: Python, NumPy, Taichi and the compiled kernels. A keyframe's own "
         f"arrays (X_canon, C, D with F = 24, Q in float64) take {arrays:.2f} MiB at this size; "
         "the rest is its graph edges (idx, valid and Q per direction) and the prior's caches, "
         "which are bounded in bytes (`DescriptorConfig.cache_bytes`).\n"
