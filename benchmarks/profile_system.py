@@ -1,0 +1,98 @@
+"""Where the time of a real run goes: frames per second, the stage table, frame time over the
+sequence, peak memory (issue 17's instrument).
+
+Runs 7-Scenes redkitchen frames 0-149 (``../shared/data/seq``) with the RGB-D prior and the
+chosen kernel set at a working resolution (``dataset.long_side``), frame by frame, and reports:
+
+* frames per second over the run, and the share of each stage (the system's own timers:
+  prior, matching, tracking, fusion, graph, backend, ...) in the frame time;
+* the mean frame time of the first and the last 30 frames (a flat run has a ratio near 1);
+* the peak resident memory of the process.
+
+Usage: ``python benchmarks/profile_system.py --long-side 512 [--frames 40] [--kernels fast]``;
+writes the section ``profile-<long_side>-<frames>`` of RESULTS.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import resource
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from _results import table, write_section
+
+from mslam.config import load_config
+from mslam.kernels import load_kernels
+from mslam.system import open_source
+from mslam.system.frontend import SlamSystem
+
+SEVEN_SCENES = (
+    Path(__file__).resolve().parents[2] / "shared/data/seq/7scenes_redkitchen_f000000-000149"
+)
+
+
+def profile(long_side: int, frames: int | None, kernels: str) -> dict:
+    """One run, frame by frame; returns FPS, stage seconds, frame times and peak RSS."""
+    cfg = load_config("rgbd", [f"dataset.long_side={long_side}"])
+    src = open_source(str(SEVEN_SCENES), cfg, max_frames=frames)
+    system = SlamSystem(src.prior, cfg, load_kernels(kernels), src.K)
+    times = []
+    for i in range(len(src.sequence)):
+        frame = src.sequence[i]
+        t0 = time.perf_counter()
+        system.process(frame)
+        times.append(time.perf_counter() - t0)
+    H, W = src.sequence[0].shape
+    return {
+        "size": f"{W}x{H}",
+        "frames": len(times),
+        "posed": len(system.frame_poses()[0]),
+        "keyframes": len(system.keyframes),
+        "seconds": sum(times),
+        "stages": dict(system.stats.seconds),
+        "times": times,
+        "rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+    }
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--long-side", type=int, default=512)
+    ap.add_argument("--frames", type=int, default=None, help="first N frames (default: all 150)")
+    ap.add_argument("--kernels", default="fast", choices=("ref", "fast"))
+    args = ap.parse_args()
+    if not SEVEN_SCENES.is_dir():
+        sys.exit(f"profile_system: shared data not found at {SEVEN_SCENES}")
+    if args.kernels == "fast":
+        import mslam_fast
+
+        mslam_fast.init("cpu", "f64")
+        profile(64, 6, "fast")  # compile the kernels first
+    r = profile(args.long_side, args.frames, args.kernels)
+    total = r["seconds"]
+    stages = sorted(r["stages"].items(), key=lambda kv: -kv[1])
+    rows = [[k, f"{v:.1f}", f"{100 * v / total:.0f} %"] for k, v in stages]
+    rows.append(["(outside the timers)", f"{total - sum(r['stages'].values()):.1f}", ""])
+    t = r["times"]
+    first, last = sum(t[:30]) / len(t[:30]), sum(t[-30:]) / len(t[-30:])
+    text = (
+        f"`python benchmarks/profile_system.py --long-side {args.long_side}"
+        f"{f' --frames {args.frames}' if args.frames else ''} --kernels {args.kernels}`: "
+        f"7-Scenes redkitchen, RGB-D prior, {r['size']}, {r['frames']} frames ({r['posed']} posed, "
+        f"{r['keyframes']} keyframes): **{r['frames'] / total:.2f} frames/s**, peak RSS "
+        f"{r['rss_mib']:.0f} MiB; mean frame time {first:.2f} s over the first 30 frames, "
+        f"{last:.2f} s over the last 30 (ratio {last / first:.2f}).\n\n"
+        + table(["stage", "seconds", "share of frame time"], rows)
+        + "\n"
+    )
+    print(text)
+    name = f"profile-{args.long_side}-{args.frames or 'all'}-{args.kernels}"
+    write_section(name, f"Stage profile, {r['size']}, {args.kernels} kernels (issue 17)", text)
+
+
+if __name__ == "__main__":
+    main()
