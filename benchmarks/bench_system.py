@@ -12,6 +12,11 @@ Taichi kernels compiled beforehand by a warm-up run):
 
 Usage: ``python benchmarks/bench_system.py [--quick] [--no-ref]`` (``--quick``: smaller runs,
 for a smoke test; the RESULTS.md section is only written by a full run).
+
+``python benchmarks/bench_system.py --resolution 512 [--frames N] [--ref-frames 20]`` instead
+profiles 7-Scenes at that working resolution for the fast kernels (float64, float32, with the
+background backend) and the reference kernels: frames per second, ATE, peak memory, frame-time
+flatness and the stage table (``_resolution.py``; section ``system-<N>`` of RESULTS.md).
 """
 
 from __future__ import annotations
@@ -100,7 +105,25 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="small runs; do not write RESULTS.md")
     ap.add_argument("--no-ref", action="store_true", help="skip the (slow) reference-kernel run")
+    ap.add_argument(
+        "--resolution",
+        type=int,
+        help="instead: 7-Scenes at this long side (e.g. 512), FPS and stage table per kernel set",
+    )
+    ap.add_argument("--frames", type=int, help="with --resolution: the first N frames only")
+    ap.add_argument(
+        "--ref-frames", type=int, default=20, help="with --resolution: frames for the ref kernels"
+    )
     args = ap.parse_args()
+    if args.resolution:
+        from _resolution import resolution_bench
+
+        text = resolution_bench(args.resolution, args.frames, 0 if args.no_ref else args.ref_frames)
+        print(text)
+        if not args.frames:
+            title = f"Whole system at {args.resolution} px long side (issue 17)"
+            write_section(f"system-{args.resolution}", title, text)
+        return
     import mslam_fast
 
     mslam_fast.init("cpu", "f64")

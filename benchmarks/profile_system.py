@@ -9,13 +9,16 @@ chosen kernel set at a working resolution (``dataset.long_side``), frame by fram
 * the mean frame time of the first and the last 30 frames (a flat run has a ratio near 1);
 * the peak resident memory of the process.
 
-Usage: ``python benchmarks/profile_system.py --long-side 512 [--frames 40] [--kernels fast]``;
-writes the section ``profile-<long_side>-<frames>`` of RESULTS.md.
+Usage: ``python benchmarks/profile_system.py --long-side 512 [--frames 40] [--kernels fast]
+[--precision f32] [--set KEY=VALUE] [--json OUT]``; writes the section
+``profile-<long_side>-<frames>-<kernels>`` of RESULTS.md (or the figures as JSON to OUT, which
+is how ``bench_system.py --resolution`` runs one profile per process).
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import resource
 import sys
 import time
@@ -29,15 +32,16 @@ from mslam.config import load_config
 from mslam.kernels import load_kernels
 from mslam.system import open_source
 from mslam.system.frontend import SlamSystem
+from mslam.system.outputs import evaluate_run
 
 SEVEN_SCENES = (
     Path(__file__).resolve().parents[2] / "shared/data/seq/7scenes_redkitchen_f000000-000149"
 )
 
 
-def profile(long_side: int, frames: int | None, kernels: str) -> dict:
-    """One run, frame by frame; returns FPS, stage seconds, frame times and peak RSS."""
-    cfg = load_config("rgbd", [f"dataset.long_side={long_side}"])
+def profile(long_side: int, frames: int | None, kernels: str, overrides=()) -> dict:
+    """One run, frame by frame; returns FPS, stage seconds, frame times, ATE and peak RSS."""
+    cfg = load_config("rgbd", [f"dataset.long_side={long_side}", *overrides])
     src = open_source(str(SEVEN_SCENES), cfg, max_frames=frames)
     system = SlamSystem(src.prior, cfg, load_kernels(kernels), src.K)
     times = []
@@ -46,8 +50,13 @@ def profile(long_side: int, frames: int | None, kernels: str) -> dict:
         t0 = time.perf_counter()
         system.process(frame)
         times.append(time.perf_counter() - t0)
+    t0 = time.perf_counter()
+    system.close()  # the background backend's queued keyframes count too
+    times[-1] += time.perf_counter() - t0
     H, W = src.sequence[0].shape
+    ev = evaluate_run(system, src.sequence)
     return {
+        "ate_m": ev.get("ate", {}).get("ate_rmse", float("nan")),
         "size": f"{W}x{H}",
         "frames": len(times),
         "posed": len(system.frame_poses()[0]),
@@ -59,38 +68,54 @@ def profile(long_side: int, frames: int | None, kernels: str) -> dict:
     }
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--long-side", type=int, default=512)
-    ap.add_argument("--frames", type=int, default=None, help="first N frames (default: all 150)")
-    ap.add_argument("--kernels", default="fast", choices=("ref", "fast"))
-    args = ap.parse_args()
-    if not SEVEN_SCENES.is_dir():
-        sys.exit(f"profile_system: shared data not found at {SEVEN_SCENES}")
-    if args.kernels == "fast":
-        import mslam_fast
-
-        mslam_fast.init("cpu", "f64")
-        profile(64, 6, "fast")  # compile the kernels first
-    r = profile(args.long_side, args.frames, args.kernels)
+def report(r: dict, command: str) -> str:
+    """The Markdown paragraph and stage table of one profile."""
     total = r["seconds"]
     stages = sorted(r["stages"].items(), key=lambda kv: -kv[1])
     rows = [[k, f"{v:.1f}", f"{100 * v / total:.0f} %"] for k, v in stages]
     rows.append(["(outside the timers)", f"{total - sum(r['stages'].values()):.1f}", ""])
     t = r["times"]
     first, last = sum(t[:30]) / len(t[:30]), sum(t[-30:]) / len(t[-30:])
-    text = (
-        f"`python benchmarks/profile_system.py --long-side {args.long_side}"
-        f"{f' --frames {args.frames}' if args.frames else ''} --kernels {args.kernels}`: "
-        f"7-Scenes redkitchen, RGB-D prior, {r['size']}, {r['frames']} frames ({r['posed']} posed, "
-        f"{r['keyframes']} keyframes): **{r['frames'] / total:.2f} frames/s**, peak RSS "
-        f"{r['rss_mib']:.0f} MiB; mean frame time {first:.2f} s over the first 30 frames, "
-        f"{last:.2f} s over the last 30 (ratio {last / first:.2f}).\n\n"
+    return (
+        f"`{command}`: 7-Scenes redkitchen, RGB-D prior, {r['size']}, {r['frames']} frames "
+        f"({r['posed']} posed, {r['keyframes']} keyframes): **{r['frames'] / total:.2f} "
+        f"frames/s**, ATE {100 * r['ate_m']:.2f} cm, peak RSS {r['rss_mib']:.0f} MiB; mean frame "
+        f"time {first:.2f} s over the first 30 frames, {last:.2f} s over the last 30 "
+        f"(ratio {last / first:.2f}).\n\n"
         + table(["stage", "seconds", "share of frame time"], rows)
         + "\n"
     )
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--long-side", type=int, default=512)
+    ap.add_argument("--frames", type=int, default=None, help="first N frames (default: all 150)")
+    ap.add_argument("--kernels", default="fast", choices=("ref", "fast"))
+    ap.add_argument("--precision", default="f64", choices=("f64", "f32"), help="fast kernels")
+    ap.add_argument("--set", action="append", default=[], help="config override KEY=VALUE")
+    ap.add_argument("--json", type=Path, help="write the figures here instead of RESULTS.md")
+    args = ap.parse_args()
+    if not SEVEN_SCENES.is_dir():
+        sys.exit(f"profile_system: shared data not found at {SEVEN_SCENES}")
+    if args.kernels == "fast":
+        import mslam_fast
+
+        mslam_fast.init("cpu", args.precision)
+        profile(64, 6, "fast")  # compile the kernels first
+    r = profile(args.long_side, args.frames, args.kernels, args.set)
+    if args.json is not None:
+        args.json.write_text(json.dumps(r))
+        return
+    prec = f" --precision {args.precision}" if args.kernels == "fast" else ""
+    command = (
+        f"python benchmarks/profile_system.py --long-side {args.long_side}"
+        f"{f' --frames {args.frames}' if args.frames else ''} --kernels {args.kernels}{prec}"
+        + "".join(f" --set {o}" for o in args.set)
+    )
+    text = report(r, command)
     print(text)
-    name = f"profile-{args.long_side}-{args.frames or 'all'}-{args.kernels}"
+    name = f"profile-{args.long_side}-{args.frames or 'all'}-{args.kernels}{prec.split()[-1] if prec else ''}"
     write_section(name, f"Stage profile, {r['size']}, {args.kernels} kernels (issue 17)", text)
 
 

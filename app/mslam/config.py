@@ -103,8 +103,9 @@ class SlamConfig:
 
     Attributes:
         use_calib: calibrated mode (pixel + log-depth residuals, points on known rays).
-        single_thread: upstream's sequential evaluation mode; this implementation is always
-            single-process, the key is kept for compatibility.
+        single_thread: upstream's sequential evaluation mode (the default here): the
+            backend runs after each new keyframe before the next frame. False runs it in a
+            background thread (``mslam.system.worker``; upstream: a separate process).
         dataset, reloc: typed sections of the application.
         sections: the resolved YAML as nested plain dicts (``matching``, ``tracking``,
             ``local_opt``, ...), the source of :meth:`matching`, :meth:`tracking`, ...
@@ -141,6 +142,14 @@ class SlamConfig:
     def backend(self) -> Any:
         """``mslam_ref.backend.BackendConfig`` from ``local_opt.*``."""
         return self._typed("backend", "BackendConfig", "local_opt")
+
+    def backend_pixel_stride(self, shape: tuple[int, int]) -> int:
+        """Stride of the pixel grid that keeps about ``local_opt.pixels_per_edge`` residuals
+        per directed block of an (H, W) pointmap (1 = every pixel, also when the key is 0)."""
+        budget = int(dict(self.sections.get("local_opt", {})).get("pixels_per_edge", 0))
+        if budget <= 0:
+            return 1
+        return max(1, int((shape[0] * shape[1] / budget) ** 0.5))
 
     def retrieval(self) -> Any:
         """``mslam_ref.retrieval.RetrievalConfig`` from ``retrieval.*`` (the one place the

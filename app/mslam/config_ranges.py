@@ -59,6 +59,7 @@ RANGES: dict[str, tuple[bool, float, float, bool]] = {
     "local_opt.sigma_depth": (False, 0, _INF, True),
     "local_opt.sigma_point": (False, 0, _INF, True),
     "local_opt.delta_norm": (False, 0, _INF, True),
+    "local_opt.pixels_per_edge": (True, 0, 1_000_000_000, False),
     "retrieval.k": (True, 1, 100, False),
     "retrieval.min_thresh": (False, 0, _INF, False),
     "reloc.min_match_frac": (False, 0, 1, False),

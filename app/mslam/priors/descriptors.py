@@ -27,6 +27,9 @@ from mslam_ref.conventions import FloatArray
 
 __all__ = ["DescriptorConfig", "patch_descriptors"]
 
+#: Image rows per block of the patch matrix (bounds its memory at H-independent size).
+_ROWS = 16
+
 
 @dataclass(frozen=True)
 class DescriptorConfig:
@@ -83,11 +86,22 @@ def patch_descriptors(
     pad = np.pad(img, ((r, r), (r, r), (0, 0)), mode="reflect" if min(H, W) > r else "edge")
     w = 2 * r + 1
     win = sliding_window_view(pad, (w, w), axis=(0, 1))[..., :: cfg.step, :: cfg.step]
-    z = np.ascontiguousarray(win.transpose(0, 1, 3, 4, 2)).reshape(H * W, -1)  # (N, 3 p^2)
-    z -= z.mean(axis=1, keepdims=True)
-    contrast = np.sqrt((z * z).mean(axis=1))
-    D = ((z @ _projection(cfg)) / (contrast + cfg.eps)[:, None]).reshape(H, W, cfg.dim)
-    contrast = contrast.reshape(H, W)
+    P = _projection(cfg)
+    n = P.shape[0]
+    D = np.empty((H, W, cfg.dim))
+    mean, mean_sq = np.empty((H, W)), np.empty((H, W))
+    # z (rows·W, 3p²) is built a few image rows at a time: the whole (H·W, 3p²) matrix would
+    # be 231 MB at 512x384, and filling it dominated the prior's time.
+    for y0 in range(0, H, _ROWS):
+        z = np.ascontiguousarray(win[y0 : y0 + _ROWS].transpose(0, 1, 3, 4, 2)).reshape(-1, n)
+        rows = len(z) // W
+        mean[y0 : y0 + rows] = (z.sum(axis=1) / n).reshape(rows, W)
+        mean_sq[y0 : y0 + rows] = (np.einsum("ij,ij->i", z, z) / n).reshape(rows, W)
+        D[y0 : y0 + rows] = (z @ P).reshape(rows, W, cfg.dim)
+    # P^T (z - m 1) = P^T z - m P^T 1, and the patch variance is mean(z²) - m².
+    contrast = np.sqrt(np.maximum(mean_sq - mean * mean, 0.0))
+    D -= mean[..., None] * P.sum(axis=0)
+    D /= (contrast + cfg.eps)[..., None]
     # A fixed tiny offset keeps the norm away from zero on perfectly flat patches.
     D[..., 0] += 1e-6
     D /= np.linalg.norm(D, axis=-1, keepdims=True)

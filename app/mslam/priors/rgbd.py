@@ -73,6 +73,8 @@ class RGBDPriorConfig:
         max_translation: a PnP translation longer than this (m) is rejected as degenerate.
         icp_iters: point-to-plane ICP iterations refining the PnP pose on the depth maps
             (0 = off).
+        icp_points: about this many of j's pixels take part (a regular grid,
+            ``rgbd_pose.icp_sample``), whatever the resolution.
         icp_dist, icp_dist_final: association distance (m) of the first and last ICP iteration
             (geometric schedule in between).
         icp_min_frac: the refined pose is kept only if at least this share of j's valid pixels
@@ -98,6 +100,7 @@ class RGBDPriorConfig:
     min_inliers: int = 15
     max_translation: float = 5.0
     icp_iters: int = 12
+    icp_points: int = 10000
     icp_dist: float = 0.1
     icp_dist_final: float = 0.02
     icp_min_frac: float = 0.25
@@ -271,6 +274,9 @@ class RGBDPrior:
 
     # -- protocol ----------------------------------------------------------------------------
     def _view(self, frame: Frame) -> tuple[FloatArray, FloatArray, np.ndarray]:
+        return self._cached("view", frame, self._compute_view)
+
+    def _compute_view(self, frame: Frame) -> tuple[FloatArray, FloatArray, np.ndarray]:
         if frame.depth is None:
             raise ValueError(f"frame {frame.index}: the RGB-D prior needs a depth image")
         z, valid = fill_depth(frame.depth, self.cfg.fill_depth)
@@ -278,6 +284,8 @@ class RGBDPrior:
         C = np.where(
             valid, 1.0 + self.cfg.conf_max * np.exp(-_kinect_sigma(z) / self.cfg.conf_sigma), 1.0
         )
+        for a in (X, C, valid):
+            a.setflags(write=False)  # cached and shared by every pair of this frame
         return X, C, valid
 
     def _desc(self, frame: Frame) -> tuple[FloatArray, FloatArray]:

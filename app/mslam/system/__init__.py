@@ -2,15 +2,17 @@
 
 Upstream runs a frontend process (tracking), a backend process (graph and global
 optimisation, relocalisation) and a viewer, talking through shared memory. Here everything is
-one process and the backend runs synchronously after every new keyframe and every
+one process and, by default, the backend runs synchronously after every new keyframe and every
 relocalisation — upstream's ``single_thread`` evaluation mode — so a run is a pure function of
-its input, config and kernel set.
+its input, config and kernel set. ``single_thread: False`` moves the backend into a
+background thread (:mod:`~mslam.system.worker`), as upstream's separate process.
 
 Modules, in reading order:
 
 * :mod:`~mslam.system.sources` — SOURCE → frames, calibration, prior (checked up front);
 * :mod:`~mslam.system.frontend` — :class:`SlamSystem`: modes, tracking, fusion, keyframes;
 * :mod:`~mslam.system.global_opt` — graph construction and the global solve;
+* :mod:`~mslam.system.worker` — the same in a background thread (``single_thread: False``);
 * :mod:`mslam.system.reloc` — relocalisation; :mod:`mslam.system.graph` — keyframes and edges;
 * :mod:`~mslam.system.outputs` — trajectory, keyframes, PLY, summary, plot.
 
@@ -137,6 +139,7 @@ def run_slam(
     finally:
         if bar is not None:
             bar.close()
+    system.close()  # the background backend (if any) finishes its queued keyframes
     seconds = time.perf_counter() - t0
     system.mode = Mode.TERMINATED
     meta = {

@@ -21,7 +21,8 @@
   correspondences (``last_status == "few_inliers"``: the frame is too far from it), the last
   tracked frame is made a keyframe first (late) and the frame tracked against it. A new
   keyframe triggers graph construction and the global backend **synchronously** (upstream's
-  ``single_thread`` mode).
+  ``single_thread`` mode), or in a background thread with ``single_thread: False``
+  (``mslam.system.worker``).
 * **RELOC** — ``mslam.system.reloc.relocalise`` on the frame; on success mode → TRACKING.
 
 Every frame's pose is stored *relative to a keyframe* (``T_CkCf``) and composed with the final
@@ -34,8 +35,10 @@ Public names, in reading order:
 
 from __future__ import annotations
 
+import threading
 import time
 from contextlib import contextmanager
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -44,10 +47,11 @@ from mslam.config import SlamConfig
 from mslam.datasets.frame import Frame
 from mslam.kernels import KernelSet
 from mslam.system import parallax
-from mslam.system.global_opt import add_keyframe_edges, solve_backend
+from mslam.system.global_opt import backend_step
 from mslam.system.graph import FactorGraph, Keyframe, KeyframeStore
 from mslam.system.retrieval_features import RetrievalIndex
 from mslam.system.state import FramePose, Mode, RunStats
+from mslam.system.worker import BackendWorker, SharedPrior
 from mslam_ref import sim3
 from mslam_ref.conventions import FloatArray
 
@@ -75,7 +79,14 @@ class SlamSystem:
 
         if cfg.use_calib and K is None:
             raise ValueError("K: calibrated mode (use_calib) needs intrinsics")
-        self.prior, self.cfg, self.kernels = prior, cfg, kernels
+        self.cfg, self.kernels = cfg, kernels
+        self.lock = threading.RLock()  # keyframes shared with the background backend
+        self.worker: BackendWorker | None = None
+        if cfg.single_thread:
+            self.prior = prior
+        else:
+            self.prior = SharedPrior(prior)
+            self.worker = BackendWorker(partial(backend_step, self))
         self.K = None if not cfg.use_calib else np.asarray(K, dtype=np.float64)
         self.matching_cfg = cfg.matching()
         self.tracking_cfg = cfg.tracking()
@@ -139,7 +150,27 @@ class SlamSystem:
             shape=shape,
             features=features,
         )
-        return self.keyframes.append(kf)
+        with self.lock:
+            return self.keyframes.append(kf)
+
+    def keyframe_added(self, k: int) -> None:
+        """Run keyframe ``k``'s graph step and global solve now (default), or queue it for
+        the background worker (``single_thread: False``, ``mslam.system.worker``)."""
+        if self.worker is not None:
+            self.worker.submit(k)
+            return
+        backend_step(self, k)
+        self.T_WC_last = self.keyframes[k].T_WC.copy()
+
+    def wait_for_backend(self) -> None:
+        """Return once the background worker (if any) has processed every queued keyframe."""
+        if self.worker is not None:
+            self.worker.drain()
+
+    def close(self) -> None:
+        """Finish the queued backend work and stop the worker (the end of a run)."""
+        if self.worker is not None:
+            self.worker.close()
 
     def _record(self, frame: Frame, kf: int, T_CkCf: FloatArray | None, status: str) -> None:
         T = sim3.identity() if T_CkCf is None else np.asarray(T_CkCf, np.float64)
@@ -164,6 +195,7 @@ class SlamSystem:
             from mslam.system.reloc import relocalise
 
             self.stats.reloc_attempts += 1
+            self.wait_for_backend()
             with self.timer("reloc"):
                 ok = relocalise(self, frame)
             if ok:
@@ -241,7 +273,9 @@ class SlamSystem:
         self.T_WC_last = T_WCf
         with self.timer("fusion"):
             X_kk = sim3.act(T_CkCf, _flat(p.X_ji))
-            kf.state = kr.fusion.update_pointmap(kf.state, X_kk, _flat(p.C_ji), self.fusion_cfg)
+            state = kr.fusion.update_pointmap(kf.state, X_kk, _flat(p.C_ji), self.fusion_cfg)
+            with self.lock:
+                kf.state = state
         new_kf = bool(tr.needs_new_keyframe(idx_f2k, valid_match_k, valid_kf, self.tracking_cfg))
         if fallback:
             self.idx_f2k = None  # the matches belong to the older keyframe
@@ -253,11 +287,7 @@ class SlamSystem:
         self.idx_f2k = None  # upstream reset_idx_f2k
         k = self.new_keyframe(frame, T_WCf, p.X_ii, p.C_ii, p.D_ii, p.Q_ii)
         self._record(frame, k, None, "keyframe")
-        with self.timer("graph"):
-            add_keyframe_edges(self, k)
-        with self.timer("backend"):
-            solve_backend(self)
-        self.T_WC_last = self.keyframes[k].T_WC.copy()
+        self.keyframe_added(k)
         return "keyframe"
 
     # -- results ---------------------------------------------------------------------------

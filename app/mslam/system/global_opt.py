@@ -1,17 +1,19 @@
 """Paper §3.5 (docs/upstream.md §1.5, §7.3, §8) — graph construction and the global backend, synchronously.
 
 Upstream runs these in a backend process; in single-thread mode the frontend waits for them.
-Here they are plain function calls after every new keyframe (and after a relocalisation):
+Here they are plain function calls after every new keyframe (and after a relocalisation),
+made by the frontend or, with ``single_thread: False``, by ``mslam.system.worker``:
 
 1. candidates for the new keyframe ``k``: the previous keyframe ``k - 1`` (``n_consec = 1``)
    plus the retrieval database's answer (query, then insert ``k``; ``retrieval.k``,
    ``retrieval.min_thresh``), deduplicated, without ``k``;
 2. ``FactorGraph.add_factors(ii=candidates, jj=[k]·n, min_match_frac=local_opt.min_match_frac)``;
 3. the global Gauss–Newton over all keyframes with edges (first one fixed), through the kernel
-   set's ``backend.solve``; the poses are written back.
+   set's ``backend.solve``, on the residuals of a pixel grid (``local_opt.pixels_per_edge``,
+   every pixel by default); the poses are written back.
 
 Public names, in reading order:
-    add_keyframe_edges, solve_backend
+    backend_step, add_keyframe_edges, residual_grid, solve_backend
 """
 
 from __future__ import annotations
@@ -22,7 +24,16 @@ import numpy as np
 
 from mslam_ref import backend
 
-__all__ = ["add_keyframe_edges", "solve_backend"]
+__all__ = ["add_keyframe_edges", "backend_step", "residual_grid", "solve_backend"]
+
+
+def backend_step(system: Any, k: int) -> None:
+    """Everything a new keyframe ``k`` triggers: its graph edges, then the global solve
+    (timed as the ``graph`` and ``backend`` stages). Upstream: main.py::run_backend."""
+    with system.timer("graph"):
+        add_keyframe_edges(system, k)
+    with system.timer("backend"):
+        solve_backend(system)
 
 
 def add_keyframe_edges(system: Any, k: int) -> int:
@@ -54,6 +65,19 @@ def add_keyframe_edges(system: Any, k: int) -> int:
     return len(system.graph) - before
 
 
+def residual_grid(shape: tuple[int, int], stride: int) -> np.ndarray:
+    """(H·W,) bool: the pixels that carry a residual, a regular grid of ``stride`` (all if 1).
+
+    Every pixel of a keyframe pointmap is a residual upstream, so a solve grows with the
+    resolution times the number of edges; ``local_opt.pixels_per_edge`` caps the pixels per
+    directed block (``SlamConfig.backend_pixel_stride``).
+    """
+    H, W = shape
+    grid = np.zeros((H, W), bool)
+    grid[stride // 2 :: stride, stride // 2 :: stride] = True
+    return grid.reshape(-1)
+
+
 def solve_backend(system: Any) -> dict[str, Any] | None:
     """Global Gauss–Newton over every keyframe with an edge; writes the poses back.
 
@@ -64,16 +88,19 @@ def solve_backend(system: Any) -> dict[str, Any] | None:
     blocks = system.graph.two_way_blocks()
     if len(blocks.ii) == 0:
         return None
-    T_WC = system.keyframes.poses()
-    X, C = system.keyframes.pointmaps(system._fusion_ref, system.K)
-    graph = backend.pose_graph(
-        X, C, blocks.ii, blocks.jj, blocks.idx, blocks.valid, blocks.Q, system.K
+    with system.lock:  # one consistent snapshot (the frontend may be adding a keyframe)
+        T_WC = system.keyframes.poses()
+        X, C = system.keyframes.pointmaps(system._fusion_ref, system.K)
+    valid = blocks.valid & residual_grid(
+        X.shape[1:3], system.cfg.backend_pixel_stride(X.shape[1:3])
     )
+    graph = backend.pose_graph(X, C, blocks.ii, blocks.jj, blocks.idx, valid, blocks.Q, system.K)
     T_new, info = system.kernels.backend.solve(T_WC, graph, system.backend_cfg)
     T_new = np.asarray(T_new, dtype=np.float64)
     if not np.all(np.isfinite(T_new)):
         raise FloatingPointError("backend.solve returned non-finite poses")
-    system.keyframes.set_poses(T_new)
+    with system.lock:
+        system.keyframes.set_poses(T_new, np.arange(len(T_new)))
     system.stats.backend_solves += 1
     record = {
         "keyframes": len(system.keyframes),

@@ -16,7 +16,7 @@ rejects them all. Each stored edge gives two directed residual blocks for the ba
 (``two_way_blocks``).
 
 Public names, in reading order:
-    Keyframe, KeyframeStore, Edge, match_pairs, FactorGraph
+    Keyframe, KeyframeStore, Edge, match_pairs, cannot_pass, match_decoded, FactorGraph
 """
 
 from __future__ import annotations
@@ -31,7 +31,15 @@ from mslam.datasets.frame import Frame
 from mslam_ref import backend
 from mslam_ref.conventions import BoolArray, FloatArray, IntArray
 
-__all__ = ["Edge", "FactorGraph", "Keyframe", "KeyframeStore", "match_pairs"]
+__all__ = [
+    "Edge",
+    "FactorGraph",
+    "Keyframe",
+    "KeyframeStore",
+    "cannot_pass",
+    "match_decoded",
+    "match_pairs",
+]
 
 
 @dataclass(eq=False)
@@ -184,16 +192,39 @@ def match_pairs(
     Returns:
         one :class:`Edge` per pair, ``kind`` left at its default.
     """
-    from mslam_ref.tracking import match_quality
-
     if len(ii) != len(jj):
         raise ValueError(f"ii, jj: lengths differ ({len(ii)} != {len(jj)})")
+    fwd = [prior.pair(store[i].frame, store[j].frame) for i, j in zip(ii, jj)]
+    return match_decoded(store, ii, jj, fwd, prior, kernels, matching_cfg, Q_conf)
+
+
+def cannot_pass(p: Any, Q_conf: float) -> bool:
+    """True when no pixel of the decoded pair ``p`` can reach a match quality above ``Q_conf``.
+
+    Every ``Q_j[n] = sqrt(Q_ii[idx_i2j[n]] · Q_ji[n]) <= sqrt(max Q_ii · max Q_ji)``, so when that
+    bound is at most ``Q_conf`` the edge's match fraction is 0 whatever the matcher finds (a
+    prior that failed on the pair says so with a tiny ``Q_ji``). Deciding this before the
+    backward decode and the matching is an early exit with the same outcome.
+    """
+    return float(np.sqrt(np.max(p.Q_ii) * np.max(p.Q_ji))) <= Q_conf
+
+
+def match_decoded(
+    store: KeyframeStore,
+    ii: list[int],
+    jj: list[int],
+    fwd: list[Any],
+    prior: Any,
+    kernels: Any,
+    matching_cfg: Any,
+    Q_conf: float,
+) -> list[Edge]:
+    """:func:`match_pairs` given the forward decodes ``fwd[e] = prior.pair(i, j)``."""
+    from mslam_ref.tracking import match_quality
+
     if not ii:
         return []
-    fwd, bwd = [], []
-    for i, j in zip(ii, jj):
-        fwd.append(prior.pair(store[i].frame, store[j].frame))  # X_ii, X_ji in camera i
-        bwd.append(prior.pair(store[j].frame, store[i].frame))  # X_jj, X_ij in camera j
+    bwd = [prior.pair(store[j].frame, store[i].frame) for i, j in zip(ii, jj)]
     # One batched call for both directions: the first half gives idx_i2j, the second idx_j2i.
     X11 = np.stack([p.X_ii for p in fwd] + [p.X_ii for p in bwd])
     X21 = np.stack([p.X_ji for p in fwd] + [p.X_ji for p in bwd])
@@ -227,6 +258,7 @@ class FactorGraph:
 
     edges: list[Edge] = field(default_factory=list)
     candidates_tested: int = 0
+    candidates_rejected_early: int = 0
 
     def __len__(self) -> int:
         return len(self.edges)
@@ -252,8 +284,19 @@ class FactorGraph:
         consecutive (``i == j - 1``); with ``is_reloc`` (strict) any invalid edge rejects all.
         Consecutive edges get ``kind = "consecutive"``, the others ``kind``.
         """
-        candidates = match_pairs(store, ii, jj, prior, kernels, matching_cfg, Q_conf)
-        self.candidates_tested += len(candidates)
+        fwd = [prior.pair(store[i].frame, store[j].frame) for i, j in zip(ii, jj)]
+        # Early exit: a non-consecutive candidate whose forward decode cannot pass the quality
+        # gate would be rejected after matching; it is rejected now, unmatched.
+        doomed = [
+            i != j - 1 and min_match_frac > 0 and cannot_pass(p, Q_conf)
+            for i, j, p in zip(ii, jj, fwd)
+        ]
+        self.candidates_tested += len(ii)
+        self.candidates_rejected_early += sum(doomed)
+        if is_reloc and any(doomed):
+            return False
+        ii, jj, fwd = ([x for x, d in zip(seq, doomed) if not d] for seq in (ii, jj, fwd))
+        candidates = match_decoded(store, ii, jj, fwd, prior, kernels, matching_cfg, Q_conf)
         keep = []
         for e in candidates:
             consecutive = e.i == e.j - 1

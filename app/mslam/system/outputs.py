@@ -135,6 +135,7 @@ def summary_dict(system: Any, meta: dict[str, Any], ev: dict[str, Any]) -> dict[
         "keyframes": len(system.keyframes),
         "edges": len(graph),
         "edge_candidates_tested": graph.candidates_tested,
+        "edge_candidates_rejected_unmatched": graph.candidates_rejected_early,
         "loop_closure_edges": graph.count("retrieval"),
         "longest_loop_closure_span": max(spans, default=0),
         "relocalisations": st.relocalisations,

@@ -24,7 +24,6 @@ from typing import Any
 import numpy as np
 
 from mslam.datasets.frame import Frame
-from mslam.system.global_opt import add_keyframe_edges, solve_backend
 from mslam.system.state import Mode
 from mslam_ref import sim3, so3
 
@@ -133,9 +132,6 @@ def promote_last_tracked(system: Any) -> bool:
     k = system.new_keyframe(frame, T_WC, X, C, D, Q)
     system.poses = [q for q in system.poses if q.index != frame.index]
     system._record(frame, k, None, "keyframe")
-    with system.timer("graph"):
-        add_keyframe_edges(system, k)
-    with system.timer("backend"):
-        solve_backend(system)
-    system.T_WC_last, system.idx_f2k = system.keyframes[k].T_WC.copy(), None
+    system.keyframe_added(k)
+    system.idx_f2k = None
     return True
