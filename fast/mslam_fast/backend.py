@@ -47,11 +47,13 @@ def _linearize_k(
     idx: nd,
     valid: nd,
     Q: nd,
+    pix: nd,
     prm: nd,
     out: nd,
     calib: ti.template(),
 ):
     n = C.shape[1]
+    n_cols = pix.shape[0]
     n_chunks = out.shape[1]
     for d, c in ti.ndrange(out.shape[0], n_chunks):
         acc = ti.Vector.zero(ti.f64, KT.NACC)
@@ -66,12 +68,13 @@ def _linearize_k(
         border, eps = ti.cast(prm[8], float), ti.cast(prm[9], float)
         Wd = ti.cast(prm[10], ti.i32)
         Hd = ti.cast(prm[11], ti.i32)
-        for k in range(c * CHUNK, ti.min(c * CHUNK + CHUNK, n)):
-            q = Q[d, k]
-            m = idx[d, k]
+        for t in range(c * CHUNK, ti.min(c * CHUNK + CHUNK, n_cols)):
+            k = pix[t]  # the pixel of j of column t
+            q = Q[d, t]
+            m = idx[d, t]
             if ti.static(not calib):  # branch-free (vectorised): a rejected pixel has weight 0
                 # `&`, not `and` (short-circuit branches would keep the loop scalar)
-                ok = (valid[d, k] != 0) & (q > Q_conf) & (C[i, m] > C_conf) & (C[j, k] > C_conf)
+                ok = (valid[d, t] != 0) & (q > Q_conf) & (C[i, m] > C_conf) & (C[j, k] > C_conf)
                 zero3 = ti.Vector([0.0, 0.0, 0.0])
                 sq = ti.sqrt(ti.select(ok, q, 0.0))
                 P = S.sim3_act(Tij, ti.select(ok, KT.load3(X, j * n + k), zero3))
@@ -82,7 +85,7 @@ def _linearize_k(
                 Jd = ti.Vector([p[0], p[1], p[2], 0.0, 0.0, 0.0, dd])  # distance row
                 KT.accumulate(acc, Jd, e, si * si * KT.huber(si * e, KT.HUBER_K), KT.ZERO_DIST)
             else:  # branch-free as well: a rejected pixel gets a safe point and weight 0
-                ok_c = (valid[d, k] != 0) & (q > Q_conf) & (C[i, m] > C_conf) & (C[j, k] > C_conf)
+                ok_c = (valid[d, t] != 0) & (q > Q_conf) & (C[i, m] > C_conf) & (C[j, k] > C_conf)
                 zj = X[3 * (j * n + k) + 2]
                 Xj = ti.Vector(  # constrain X_j to the ray of pixel k
                     [
@@ -145,7 +148,9 @@ def linearize(
     Hs, gs = np.zeros((D, 4, 7, 7)), np.zeros((D, 2, 7))
     if D == 0:
         return Hs, gs, 0.0
-    out = np.zeros((D, max(1, -(-N // CHUNK)), KT.NACC))
+    pix = np.arange(N) if g.pixels is None else g.pixels
+    n_cols = len(pix)
+    out = np.zeros((D, max(1, -(-n_cols // CHUNK)), KT.NACC))
     c = lambda a, s, t=dtype: np.ascontiguousarray(np.reshape(a, s), dtype=t)
     _linearize_k(
         c(T_WC, (n_kf, 8)),
@@ -153,9 +158,10 @@ def linearize(
         c(g.C, (n_kf, N)),
         c(g.ii, (D,), np.int32),
         c(g.jj, (D,), np.int32),
-        c(g.idx, (D, N), np.int32),
-        c(g.valid, (D, N), np.uint8),
-        c(g.Q, (D, N)),
+        c(g.idx, (D, n_cols), np.int32),
+        c(g.valid, (D, n_cols), np.uint8),
+        c(g.Q, (D, n_cols)),
+        c(pix, (n_cols,), np.int32),
         _params(cfg, K, H, W),
         out,
         K is not None,

@@ -15,11 +15,9 @@ Sign convention (gn_kernels.cu): ``e = prediction - measurement``, ``J = de/dxi`
 perturbations of the *world* poses, ``g = J^T W e`` and the step ``dx = -H^-1 g``.
 With ``J_loc = de/d(left perturbation at P)``, ``J_j = J_loc Ad(T_WCi)^-1`` and ``J_i = -J_j``.
 
-The data that stays fixed while the poses move (pointmaps, confidences, the directed blocks
-and, in calibrated mode, the intrinsics) is one :class:`PoseGraph`, built and validated once
-by :func:`pose_graph`. In calibrated mode its pointmaps are constrained to their rays there,
-as upstream's ``solve_GN_calib`` does; the constraint is idempotent, so a caller that already
-constrained them loses nothing.
+The data that stays fixed while the poses move (pointmaps, confidences, the directed blocks,
+the intrinsics in calibrated mode) is one :class:`PoseGraph`, validated once by
+:func:`pose_graph`, which constrains calibrated pointmaps to their rays (idempotent).
 
 Public names, in reading order:
     BackendConfig, BackendInfo, directed_blocks, block_residual_and_jacobian, PoseGraph,
@@ -147,6 +145,7 @@ def block_residual_and_jacobian(
     Q: FloatArray,
     cfg: BackendConfig = BackendConfig(),
     K: FloatArray | None = None,
+    pixels: IntArray | None = None,
 ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
     """Residuals, pose Jacobians and sqrt weights of one directed block (i <- j).
 
@@ -167,21 +166,20 @@ def block_residual_and_jacobian(
         idx: (N,) pixel of i matched to each pixel of j; valid: (N,) bool; Q: (N,) quality.
         cfg: backend configuration.
         K: None (ray + distance) or (3, 3) intrinsics (pixel + log-depth).
+        pixels: (N,) the pixels k of j that carry the residuals, in the order of ``idx``
+            (None: every pixel, N = H·W).
 
     Returns:
         e: (N, c); J_i: (N, c, 7); J_j: (N, c, 7); w: (N, c) sqrt weights (0 where invalid),
         with c = 4 (ray) or 3 (calibrated). Rows with w = 0 may hold any finite value.
     """
     H, W = X_j.shape[:2]
-    Xi, Xj = X_i.reshape(-1, 3), X_j.reshape(-1, 3)
+    Xi, Xj, C_j = X_i.reshape(-1, 3), X_j.reshape(-1, 3), C_j.reshape(-1)
+    if pixels is not None:
+        Xj, C_j = Xj[pixels], C_j[pixels]
     m = np.where(valid, idx, 0)
     Xim = Xi[m]
-    ok = (
-        valid
-        & (Q > cfg.Q_conf)
-        & (C_i.reshape(-1)[m] > cfg.C_conf)
-        & (C_j.reshape(-1) > cfg.C_conf)
-    )
+    ok = valid & (Q > cfg.Q_conf) & (C_i.reshape(-1)[m] > cfg.C_conf) & (C_j > cfg.C_conf)
     sq = np.sqrt(np.maximum(Q, 0.0)) * ok
     P, dP = sim3.act_and_jacobian(sim3.mul(sim3.inv(T_WCi), T_WCj), Xj)
     if K is None:
@@ -223,6 +221,9 @@ class PoseGraph:
         idx: (D, N) int64 pixel of i matched to each pixel of j; valid: (D, N) bool;
             Q: (D, N) match quality.
         K_cam: None for the ray + distance residual, (3, 3) intrinsics for pixel + log-depth.
+        pixels: None (every pixel of j has a residual, N = H·W) or (N,) int64: the pixels of
+            j whose residuals the columns of idx, valid and Q hold (a subset keeps a solve's
+            cost independent of the resolution; upstream uses every pixel).
     """
 
     X: FloatArray
@@ -233,6 +234,7 @@ class PoseGraph:
     valid: BoolArray
     Q: FloatArray
     K_cam: FloatArray | None = None
+    pixels: IntArray | None = None
 
     @property
     def n_blocks(self) -> int:
@@ -250,8 +252,25 @@ def _keyframe_indices(ii: Any, jj: Any, n_kf: int) -> tuple[IntArray, IntArray]:
     return ii.astype(np.int64), jj.astype(np.int64)
 
 
+def _pixel_indices(a: Any, name: str, shape: tuple[int, ...], n_pix: int) -> IntArray:
+    a = np.asarray(a)
+    if a.shape != shape or not np.issubdtype(a.dtype, np.integer):
+        raise ValueError(f"{name}: expected integer shape {shape}, got {a.dtype} {a.shape}")
+    if a.size and (a.min() < 0 or a.max() >= n_pix):
+        raise ValueError(f"{name}: pixel indices must lie in [0, {n_pix})")
+    return a.astype(np.int64)
+
+
 def pose_graph(
-    X: Any, C: Any, ii: Any, jj: Any, idx: Any, valid: Any, Q: Any, K_cam: Any = None
+    X: Any,
+    C: Any,
+    ii: Any,
+    jj: Any,
+    idx: Any,
+    valid: Any,
+    Q: Any,
+    K_cam: Any = None,
+    pixels: Any = None,
 ) -> PoseGraph:
     """Validate and convert the backend's fixed data (shapes, index ranges, finiteness).
 
@@ -271,21 +290,18 @@ def pose_graph(
     n_pix = X.shape[1] * X.shape[2]
     ii, jj = _keyframe_indices(ii, jj, len(X))
     D = len(ii)
-    idx = np.asarray(idx)
-    if idx.shape != (D, n_pix) or not np.issubdtype(idx.dtype, np.integer):
-        raise ValueError(f"idx: expected integer shape {(D, n_pix)}, got {idx.dtype} {idx.shape}")
-    if D and (idx.min() < 0 or idx.max() >= n_pix):
-        raise ValueError(f"idx: pixel indices must lie in [0, {n_pix})")
-    valid = np.asarray(valid)
-    if valid.shape != (D, n_pix):
-        raise ValueError(f"valid: expected shape {(D, n_pix)}, got {valid.shape}")
-    Q = as_float_array(Q, "Q")
-    if Q.shape != (D, n_pix):
-        raise ValueError(f"Q: expected shape {(D, n_pix)}, got {Q.shape}")
+    if pixels is not None:
+        pixels = _pixel_indices(pixels, "pixels", (np.asarray(pixels).size,), n_pix)
+    N = n_pix if pixels is None else len(pixels)
+    idx = _pixel_indices(idx, "idx", (D, N), n_pix)
+    valid, Q = np.asarray(valid), as_float_array(Q, "Q")
+    for name, a in (("valid", valid), ("Q", Q)):
+        if a.shape != (D, N):
+            raise ValueError(f"{name}: expected shape {(D, N)}, got {a.shape}")
     if K_cam is not None:
         K_cam = check_K(K_cam)
         X = calib.constrain_points_to_ray(X, K_cam)
-    return PoseGraph(X, C, ii, jj, idx.astype(np.int64), valid.astype(bool), Q, K_cam)
+    return PoseGraph(X, C, ii, jj, idx, valid.astype(bool), Q, K_cam, pixels)
 
 
 def check_poses(T_WC: Any, graph: PoseGraph) -> FloatArray:
@@ -325,7 +341,7 @@ def linearize(
         i, j = g.ii[d], g.jj[d]
         e, J_i, J_j, w = block_residual_and_jacobian(
             T_WC[i], T_WC[j], g.X[i], g.X[j], g.C[i], g.C[j], g.idx[d], g.valid[d], g.Q[d], cfg,
-            g.K_cam,
+            g.K_cam, g.pixels,
         )  # fmt: skip
         W = robust.huber_weight(w * e, HUBER_K) * w * w  # (N, c)
         sW = np.sqrt(W)

@@ -77,3 +77,35 @@ def test_empty_and_bad(fast: str) -> None:
     assert Hs.shape == (0, 4, 7, 7) and gs.shape == (0, 2, 7) and cost == 0.0
     with pytest.raises(ValueError, match="T_WC"):
         fst.linearize(T[:2], ref.pose_graph(X, C, ii, jj, idx, valid, Q))
+
+
+@pytest.mark.parametrize("calibrated", [False, True])
+def test_residual_pixel_subset(fast: str, calibrated: bool) -> None:
+    """``pixels`` (a subset of j's pixels as the columns) equals masking every other pixel,
+    in the reference and in the fast kernel."""
+    from mslam_fast import backend as fst
+
+    T, X, C, ii, jj, idx, valid, Q = _graph(4)
+    Kc = K if calibrated else None
+    pixels = np.flatnonzero(np.random.default_rng(5).random(H * W) < 0.3)
+    masked = np.zeros_like(valid)
+    masked[:, pixels] = valid[:, pixels]
+    full = ref.linearize(T, ref.pose_graph(X, C, ii, jj, idx, masked, Q, Kc))
+    sub_graph = ref.pose_graph(
+        X, C, ii, jj, idx[:, pixels], valid[:, pixels], Q[:, pixels], Kc, pixels
+    )
+    sub = ref.linearize(T, sub_graph)
+    np.testing.assert_allclose(sub[0], full[0], rtol=1e-12, atol=1e-9)
+    np.testing.assert_allclose(sub[1], full[1], rtol=1e-12, atol=1e-9)
+    assert sub[2] == pytest.approx(full[2], rel=1e-12)
+    Hf, gf, cf = fst.linearize(T, sub_graph)
+    t = tol("backend", fast)
+    scale = np.abs(sub[0]).max(axis=(1, 2, 3), keepdims=True)
+    assert np.all(np.abs(Hf - sub[0]) <= t["atol"] * scale + t["rtol"] * np.abs(sub[0]))
+    gscale = np.abs(sub[1]).max(axis=(1, 2), keepdims=True)
+    assert np.all(np.abs(gf - sub[1]) <= t["atol"] * gscale + t["rtol"] * np.abs(sub[1]))
+    assert cf == pytest.approx(sub[2], rel=t["rtol"])
+    with pytest.raises(ValueError, match="idx"):
+        ref.pose_graph(X, C, ii, jj, idx, valid, Q, Kc, pixels)  # columns must match pixels
+    with pytest.raises(ValueError, match="pixels"):
+        ref.pose_graph(X, C, ii, jj, idx[:, :2], valid[:, :2], Q[:, :2], Kc, [0, H * W])

@@ -85,16 +85,17 @@ def solve_backend(system: Any) -> dict[str, Any] | None:
     are ray-constrained first in calibrated mode. Returns a record of the solve (or None when
     the graph has no edge).
     """
-    blocks = system.graph.two_way_blocks()
-    if len(blocks.ii) == 0:
-        return None
     with system.lock:  # one consistent snapshot (the frontend may be adding a keyframe)
         T_WC = system.keyframes.poses()
         X, C = system.keyframes.pointmaps(system._fusion_ref, system.K)
-    valid = blocks.valid & residual_grid(
-        X.shape[1:3], system.cfg.backend_pixel_stride(X.shape[1:3])
+    stride = system.cfg.backend_pixel_stride(X.shape[1:3])
+    pixels = None if stride == 1 else np.flatnonzero(residual_grid(X.shape[1:3], stride))
+    blocks = system.graph.two_way_blocks(pixels)
+    if len(blocks.ii) == 0:
+        return None
+    graph = backend.pose_graph(
+        X, C, blocks.ii, blocks.jj, blocks.idx, blocks.valid, blocks.Q, system.K, pixels
     )
-    graph = backend.pose_graph(X, C, blocks.ii, blocks.jj, blocks.idx, valid, blocks.Q, system.K)
     T_new, info = system.kernels.backend.solve(T_WC, graph, system.backend_cfg)
     T_new = np.asarray(T_new, dtype=np.float64)
     if not np.all(np.isfinite(T_new)):

@@ -319,12 +319,15 @@ class FactorGraph:
         """Number of stored edges of one kind."""
         return sum(e.kind == kind for e in self.edges)
 
-    def two_way_blocks(self) -> SimpleNamespace:
+    def two_way_blocks(self, pixels: IntArray | None = None) -> SimpleNamespace:
         """Directed residual blocks of all edges (upstream ``prep_two_way_edges``, docs/upstream.md §7.4).
 
         Edge (i, j) gives block (i ← j) with ``idx_i2j, valid_match_j, Q_j`` (residuals over
         the pixels of j, reference pixel in i) and block (j ← i) with ``idx_j2i,
         valid_match_i, Q_i``.
+
+        Args:
+            pixels: (N,) the pixels (of each block's j) to keep; None keeps all H·W.
 
         Returns:
             namespace with ii (D,), jj (D,) int64, idx (D, N) int64, valid (D, N) bool,
@@ -334,7 +337,8 @@ class FactorGraph:
             z = np.zeros(0, dtype=np.int64)
             empty = (np.zeros((0, 0), np.int64), np.zeros((0, 0), bool), np.zeros((0, 0)))
             return SimpleNamespace(ii=z, jj=z, idx=empty[0], valid=empty[1], Q=empty[2])
-        stack = lambda name: np.stack([getattr(e, name) for e in self.edges])
+        cols = slice(None) if pixels is None else pixels
+        stack = lambda name: np.stack([getattr(e, name)[cols] for e in self.edges])
         ii, jj, idx, valid, Q = backend.directed_blocks(
             [e.i for e in self.edges],
             [e.j for e in self.edges],
