@@ -107,6 +107,7 @@ class SlamSystem:
         self._rotation_only: np.ndarray | None = None
         self._first_status = "ok"
         self._last_tracked: tuple | None = None
+        self._tracking_pair: tuple | None = None
 
     # -- bookkeeping -----------------------------------------------------------------------
     @contextmanager
@@ -152,6 +153,15 @@ class SlamSystem:
         )
         with self.lock:
             return self.keyframes.append(kf)
+
+    def last_pair(self) -> dict[tuple[int, int], Any]:
+        """The last tracking decode, ``{(frame index, keyframe's frame index): prediction}``:
+        when that frame becomes a keyframe, it is the backward decode of its consecutive
+        edge, which the graph step then does not recompute."""
+        if self._tracking_pair is None:
+            return {}
+        fi, fk, p = self._tracking_pair
+        return {(fi, fk): p}
 
     def keyframe_added(self, k: int) -> None:
         """Run keyframe ``k``'s graph step and global solve now (default), or queue it for
@@ -239,6 +249,7 @@ class SlamSystem:
         if self._rotation_only is not None:
             return parallax.track_rotation_only(self, frame, kf_idx)
         kf = self.keyframes[kf_idx]
+        self._tracking_pair = (int(frame.index), int(kf.frame.index), p)
         H, W = p.X_ii.shape[:2]
         if (H, W) != kf.shape:
             raise ValueError(f"frame {frame.index}: pointmap shape {(H, W)} != keyframe {kf.shape}")

@@ -61,6 +61,7 @@ def add_keyframe_edges(system: Any, k: int) -> int:
         Q_conf=system.backend_cfg.Q_conf,
         min_match_frac=system.backend_cfg.min_match_frac,
         kind="retrieval",
+        known=system.last_pair(),
     )
     return len(system.graph) - before
 

@@ -7,7 +7,7 @@ of docs/upstream.md §14) it is a Python list that grows one keyframe at a time.
 
 An edge (i, j) between two keyframes is made like upstream's ``FactorGraph.add_factors``:
 the prior decodes the pair both ways, ``pair(i, j)`` and ``pair(j, i)``, matching runs on both
-directions in one batched call, and the per-pixel match quality
+directions in one call per edge, and the per-pixel match quality
 ``Q_j[n] = sqrt(Q_ii[idx_i2j[n]] · Q_ji[n])`` (and ``Q_i`` likewise) decides the edge's match
 fraction ``min(mean(valid_j), mean(valid_i))`` with ``valid = valid_match ∧ Q > Q_conf``. An
 edge is rejected when that fraction is below ``min_match_frac`` **unless it is consecutive**
@@ -218,33 +218,41 @@ def match_decoded(
     kernels: Any,
     matching_cfg: Any,
     Q_conf: float,
+    known: dict[tuple[int, int], Any] | None = None,
 ) -> list[Edge]:
-    """:func:`match_pairs` given the forward decodes ``fwd[e] = prior.pair(i, j)``."""
+    """:func:`match_pairs` given the forward decodes ``fwd[e] = prior.pair(i, j)``.
+
+    ``known`` maps (frame index of i, frame index of j) to a decode ``prior.pair`` already
+    returned for those frames (the frontend's last tracking pair); the prior is deterministic,
+    so reusing it is exact.
+    """
     from mslam_ref.tracking import match_quality
 
-    if not ii:
-        return []
-    bwd = [prior.pair(store[j].frame, store[i].frame) for i, j in zip(ii, jj)]
-    # One batched call for both directions: the first half gives idx_i2j, the second idx_j2i.
-    X11 = np.stack([p.X_ii for p in fwd] + [p.X_ii for p in bwd])
-    X21 = np.stack([p.X_ji for p in fwd] + [p.X_ji for p in bwd])
-    D11 = np.stack([p.D_ii for p in fwd] + [p.D_ii for p in bwd])
-    D21 = np.stack([p.D_ji for p in fwd] + [p.D_ji for p in bwd])
-    idx, valid = kernels.matching.match(X11, X21, D11, D21, None, matching_cfg)
-    idx = np.asarray(idx, dtype=np.int64)
-    valid = np.asarray(valid, dtype=bool).reshape(idx.shape)
-    E = len(ii)
+    known = known or {}
     edges = []
     for e, (i, j) in enumerate(zip(ii, jj)):
-        p, q = fwd[e], bwd[e]
-        idx_i2j, valid_j = idx[e], valid[e]
-        idx_j2i, valid_i = idx[E + e], valid[E + e]
-        Q_j = match_quality(_flat(p.Q_ii), _flat(p.Q_ji), idx_i2j)
-        Q_i = match_quality(_flat(q.Q_ii), _flat(q.Q_ji), idx_j2i)
-        frac_j = float(np.mean(valid_j & (Q_j > Q_conf)))
-        frac_i = float(np.mean(valid_i & (Q_i > Q_conf)))
+        p = fwd[e]
+        fi, fj = store[j].frame, store[i].frame
+        q = known.get((int(fi.index), int(fj.index))) or prior.pair(fi, fj)  # X_jj, X_ij in j
+        # One call for both directions: pair 0 gives idx_i2j, pair 1 idx_j2i. Edge by edge
+        # (not all edges in one batch): the stacked descriptors of 2E pairs were the run's
+        # memory peak at 512x384 (38 MB per pair and copy).
+        idx, valid = kernels.matching.match(
+            np.stack([p.X_ii, q.X_ii]),
+            np.stack([p.X_ji, q.X_ji]),
+            np.stack([p.D_ii, q.D_ii]),
+            np.stack([p.D_ji, q.D_ji]),
+            None,
+            matching_cfg,
+        )
+        idx = np.asarray(idx, dtype=np.int64)
+        valid = np.asarray(valid, dtype=bool).reshape(idx.shape)
+        Q_j = match_quality(_flat(p.Q_ii), _flat(p.Q_ji), idx[0])
+        Q_i = match_quality(_flat(q.Q_ii), _flat(q.Q_ji), idx[1])
+        frac_j = float(np.mean(valid[0] & (Q_j > Q_conf)))
+        frac_i = float(np.mean(valid[1] & (Q_i > Q_conf)))
         edges.append(
-            Edge(int(i), int(j), idx_i2j, idx_j2i, valid_j, valid_i, Q_j, Q_i, min(frac_j, frac_i))
+            Edge(int(i), int(j), idx[0], idx[1], valid[0], valid[1], Q_j, Q_i, min(frac_j, frac_i))
         )
     return edges
 
@@ -275,6 +283,7 @@ class FactorGraph:
         min_match_frac: float,
         is_reloc: bool = False,
         kind: str = "retrieval",
+        known: dict[tuple[int, int], Any] | None = None,
     ) -> bool:
         """Match candidate pairs and store the accepted edges; True if at least one was added.
 
@@ -282,7 +291,8 @@ class FactorGraph:
 
         Acceptance: an edge is invalid when ``match_frac < min_match_frac`` and it is not
         consecutive (``i == j - 1``); with ``is_reloc`` (strict) any invalid edge rejects all.
-        Consecutive edges get ``kind = "consecutive"``, the others ``kind``.
+        Consecutive edges get ``kind = "consecutive"``, the others ``kind``. ``known``: decodes
+        already made, as in :func:`match_decoded`.
         """
         fwd = [prior.pair(store[i].frame, store[j].frame) for i, j in zip(ii, jj)]
         # Early exit: a non-consecutive candidate whose forward decode cannot pass the quality
@@ -296,7 +306,7 @@ class FactorGraph:
         if is_reloc and any(doomed):
             return False
         ii, jj, fwd = ([x for x, d in zip(seq, doomed) if not d] for seq in (ii, jj, fwd))
-        candidates = match_decoded(store, ii, jj, fwd, prior, kernels, matching_cfg, Q_conf)
+        candidates = match_decoded(store, ii, jj, fwd, prior, kernels, matching_cfg, Q_conf, known)
         keep = []
         for e in candidates:
             consecutive = e.i == e.j - 1
