@@ -31,11 +31,14 @@ RUNS = (
 )
 
 
-def run_profile(long_side: int, kernels: str, extra: list[str], frames: int | None) -> dict:
+def run_profile(
+    long_side: int, kernels: str, extra: list[str], frames: int | None, config: str
+) -> dict:
     """One ``profile_system.py`` run in a fresh process; returns its JSON figures."""
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "r.json"
         cmd = [sys.executable, str(HERE / "profile_system.py"), "--long-side", str(long_side)]
+        cmd += ["--config", config]
         cmd += ["--kernels", kernels, *extra, "--json", str(out)]
         if frames:
             cmd += ["--frames", str(frames)]
@@ -73,21 +76,21 @@ def stage_table(runs: list[tuple[str, dict]]) -> str:
     return table(["stage"] + [label for label, _ in runs], rows)
 
 
-def resolution_bench(long_side: int, frames: int | None, ref_frames: int) -> str:
-    """Run :data:`RUNS` at ``long_side``; returns the Markdown text for RESULTS.md."""
+def resolution_bench(long_side: int, frames: int | None, ref_frames: int, config: str) -> str:
+    """Run :data:`RUNS` at ``long_side`` with ``config``; returns the Markdown for RESULTS.md."""
     runs = []
     for label, kernels, extra in RUNS:
         n = ref_frames if kernels == "ref" else frames
         if kernels == "ref" and ref_frames <= 0:
             continue
-        r = run_profile(long_side, kernels, extra, n)
+        r = run_profile(long_side, kernels, extra, n, config)
         runs.append((label if n is None else f"{label} (first {n} frames)", r))
         print(label, {k: r[k] for k in ("frames", "posed", "seconds", "ate_m", "rss_mib")})
     size = runs[0][1]["size"]
     header = ["kernels", "frames", "posed", "keyframes", "frames/s", "ATE [cm]",
               "peak RSS [MiB]", "last 30 / first 30", "largest stage"]  # fmt: skip
     return (
-        f"7-Scenes redkitchen frames 0-149, RGB-D prior (`--config rgbd`), {size} "
+        f"7-Scenes redkitchen frames 0-149, RGB-D prior (`--config {config}`), {size} "
         f"(`--set dataset.long_side={long_side}`), one process per row, Taichi kernels compiled "
         "beforehand. `frames/s` counts the whole run including every graph step and solve; "
         "`last 30 / first 30` compares the mean frame times at the end and the start.\n\n"

@@ -112,13 +112,19 @@ def main() -> None:
     )
     ap.add_argument("--frames", type=int, help="with --resolution: the first N frames only")
     ap.add_argument(
+        "--config",
+        help="with --resolution: the config (default: rgbd_512 from 400 px up, else rgbd)",
+    )
+    ap.add_argument(
         "--ref-frames", type=int, default=20, help="with --resolution: frames for the ref kernels"
     )
     args = ap.parse_args()
     if args.resolution:
         from _resolution import resolution_bench
 
-        text = resolution_bench(args.resolution, args.frames, 0 if args.no_ref else args.ref_frames)
+        config = args.config or ("rgbd_512" if args.resolution >= 400 else "rgbd")
+        n_ref = 0 if args.no_ref else args.ref_frames
+        text = resolution_bench(args.resolution, args.frames, n_ref, config)
         print(text)
         if not args.frames:
             title = f"Whole system at {args.resolution} px long side (issue 17)"

@@ -39,9 +39,11 @@ SEVEN_SCENES = (
 )
 
 
-def profile(long_side: int, frames: int | None, kernels: str, overrides=()) -> dict:
+def profile(
+    long_side: int, frames: int | None, kernels: str, overrides=(), config: str = "rgbd"
+) -> dict:
     """One run, frame by frame; returns FPS, stage seconds, frame times, ATE and peak RSS."""
-    cfg = load_config("rgbd", [f"dataset.long_side={long_side}", *overrides])
+    cfg = load_config(config, [f"dataset.long_side={long_side}", *overrides])
     src = open_source(str(SEVEN_SCENES), cfg, max_frames=frames)
     system = SlamSystem(src.prior, cfg, load_kernels(kernels), src.K)
     times = []
@@ -93,6 +95,7 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=None, help="first N frames (default: all 150)")
     ap.add_argument("--kernels", default="fast", choices=("ref", "fast"))
     ap.add_argument("--precision", default="f64", choices=("f64", "f32"), help="fast kernels")
+    ap.add_argument("--config", default="rgbd", help="config file or packaged name (rgbd_512)")
     ap.add_argument("--set", action="append", default=[], help="config override KEY=VALUE")
     ap.add_argument("--json", type=Path, help="write the figures here instead of RESULTS.md")
     args = ap.parse_args()
@@ -103,7 +106,7 @@ def main() -> None:
 
         mslam_fast.init("cpu", args.precision)
         profile(64, 6, "fast")  # compile the kernels first
-    r = profile(args.long_side, args.frames, args.kernels, args.set)
+    r = profile(args.long_side, args.frames, args.kernels, args.set, args.config)
     if args.json is not None:
         args.json.write_text(json.dumps(r))
         return
@@ -111,6 +114,7 @@ def main() -> None:
     command = (
         f"python benchmarks/profile_system.py --long-side {args.long_side}"
         f"{f' --frames {args.frames}' if args.frames else ''} --kernels {args.kernels}{prec}"
+        + (f" --config {args.config}" if args.config != "rgbd" else "")
         + "".join(f" --set {o}" for o in args.set)
     )
     text = report(r, command)

@@ -180,3 +180,27 @@ def test_shared_prior_keeps_the_status_of_each_thread() -> None:
     t.start()
     t.join()
     assert seen == ["5-6"] and shared.last_status == "1-2"
+
+
+def test_rgbd_512_config_is_rgbd_at_512_with_upstreams_keyframe_threshold() -> None:
+    rgbd, big, base = load_config("rgbd"), load_config("rgbd_512"), load_config()
+    assert big.dataset.long_side == 512
+    assert big.tracking().match_frac_thresh == base.tracking().match_frac_thresh
+    assert big.fusion() == rgbd.fusion() and big.backend() == rgbd.backend()
+    assert big.backend_pixel_stride((384, 512)) == rgbd.backend_pixel_stride((384, 512)) > 1
+
+
+def test_run_precision_option(tmp_path, capsys) -> None:
+    import mslam_fast
+    from mslam.cli import main
+
+    try:
+        out = tmp_path / "o"
+        code = main(["run", "synthetic:loop:8:48x36", "--out", str(out), "--precision", "f32"])
+        assert code == 0 and (out / "trajectory.txt").is_file()
+        assert mslam_fast.current().fp == "f32"
+        with pytest.raises(SystemExit) as exc:
+            main(["run", "--out", str(tmp_path / "p"), "--precision", "f16"])
+        assert exc.value.code == 2
+    finally:
+        mslam_fast.init("cpu", "f64")
