@@ -4,10 +4,14 @@ For RGB-only input without a network (image folders, videos, the RGB stream of T
 ``pair(i, j)`` reconstructs both images in camera i from the images alone
 (:mod:`mslam.priors.twoview_geometry` has the maths):
 
-1. dense flow ``F_ij``, ``F_ji`` (DIS) with a forward–backward check (``fb_px``);
+1. dense flow ``F_ij``, ``F_ji`` (DIS) with a forward–backward check (``fb_px``), seeded by a
+   SIFT homography when that is more consistent (:mod:`mslam.priors.twoview_flow`: DIS alone
+   follows only ~10-15 px at 160x120, which excluded every loop-closure pair);
 2. relative pose ``X_j = R_ji X_i + t_ji`` from the essential matrix (RANSAC on at most
    ``max_ransac_points`` correspondences on a regular grid with forward–backward error below
-   ``pose_fb_px``), refined on all its inliers (robust Sampson least squares);
+   ``pose_fb_px``), refined on all its inliers (robust Sampson least squares), together with
+   the homography's decompositions; hypotheses the pair cannot tell apart (a planar scene)
+   are resolved by an earlier reconstruction of i or j (:mod:`mslam.priors.twoview_planar`);
 3. the pair is **degenerate** — too few inliers (``min_inliers``) or consistent flow vectors
    (``min_flow_frac``), or too little parallax
    (:func:`homography_parallax` < ``min_parallax_px``: the flow is a homography that is a
