@@ -126,10 +126,10 @@ def main() -> None:
             print(name, {k: v for k, v in rows[-1][1].items()}, flush=True)
     with tempfile.TemporaryDirectory() as tmp:
         from mslam.datasets.synthetic import make_sequence
-        from mslam.datasets.tum import write_tum
+        from mslam.datasets.tum import write_tum_sequence
 
         folder = Path(tmp) / "loop"
-        write_tum(make_sequence("loop", args.loop_frames, 160, 120, 0), folder)
+        write_tum_sequence(make_sequence("loop", args.loop_frames, 160, 120, 0), folder)
         for cal in (None, str(folder / "calib.yaml")):
             mode = "calibrated" if cal else "uncalibrated"
             name = f"synthetic loop folder ({args.loop_frames} frames, 160x120), twoview, {mode}"

@@ -65,11 +65,18 @@ def _grey(rgb: np.ndarray) -> np.ndarray:
     return cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
 
 
-def dense_flow(rgb_i: np.ndarray, rgb_j: np.ndarray) -> tuple[FloatArray, FloatArray]:
+def dense_flow(
+    rgb_i: np.ndarray,
+    rgb_j: np.ndarray,
+    init_ij: FloatArray | None = None,
+    init_ji: FloatArray | None = None,
+) -> tuple[FloatArray, FloatArray]:
     """Forward and backward DIS optical flow (preset MEDIUM) between two RGB images.
 
     Args:
         rgb_i, rgb_j: (H, W, 3) uint8 images of the same size.
+        init_ij, init_ji: optional (H, W, 2) initial flows (DIS refines them instead of
+            starting from zero; ``mslam.priors.twoview_flow`` seeds them from sparse matches).
 
     Returns:
         F_ij: (H, W, 2) float64, pixel ``u`` of i corresponds to ``u + F_ij(u)`` in j;
@@ -78,10 +85,17 @@ def dense_flow(rgb_i: np.ndarray, rgb_j: np.ndarray) -> tuple[FloatArray, FloatA
     gi, gj = _grey(rgb_i), _grey(rgb_j)
     if gi.shape != gj.shape:
         raise ValueError(f"rgb_j: size {gj.shape} differs from rgb_i {gi.shape}")
-    dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
-    F_ij = dis.calc(gi, gj, None)
-    F_ji = dis.calc(gj, gi, None)
-    return F_ij.astype(np.float64), F_ji.astype(np.float64)
+    out = []
+    for a, b, init in ((gi, gj, init_ij), (gj, gi, init_ji)):
+        dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
+        if init is None:
+            out.append(dis.calc(a, b, None))
+        else:
+            flow = np.array(init, dtype=np.float32, order="C")  # DIS refines it in place
+            if flow.shape != (*gi.shape, 2):
+                raise ValueError(f"init: expected {(*gi.shape, 2)}, got {flow.shape}")
+            out.append(dis.calc(a, b, flow))
+    return out[0].astype(np.float64), out[1].astype(np.float64)
 
 
 def _grid(H: int, W: int) -> FloatArray:
