@@ -46,11 +46,11 @@ def profile(
     cfg = load_config(config, [f"dataset.long_side={long_side}", *overrides])
     src = open_source(str(SEVEN_SCENES), cfg, max_frames=frames)
     system = SlamSystem(src.prior, cfg, load_kernels(kernels), src.K)
-    times = []
+    times, statuses = [], []
     for i in range(len(src.sequence)):
         frame = src.sequence[i]
         t0 = time.perf_counter()
-        system.process(frame)
+        statuses.append(system.process(frame))
         times.append(time.perf_counter() - t0)
     t0 = time.perf_counter()
     system.close()  # the background backend's queued keyframes count too
@@ -66,8 +66,20 @@ def profile(
         "seconds": sum(times),
         "stages": dict(system.stats.seconds),
         "times": times,
+        "statuses": statuses,
         "rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
     }
+
+
+def flatness(r: dict) -> tuple[float, float]:
+    """Growth of the cost with the map: mean time of frames that did not become keyframes
+    (last 30 / first 30 such frames), and of the frames that did (last 3 / first 3 after
+    the first keyframe: their graph step and solve)."""
+    t, st = r["times"], r["statuses"]
+    plain = [x for x, s in zip(t, st, strict=True) if s != "keyframe"]
+    kf = [x for x, s in zip(t, st, strict=True) if s == "keyframe"][1:]
+    ratio = lambda a, n: (sum(a[-n:]) / len(a[-n:])) / (sum(a[:n]) / len(a[:n])) if a else 0.0
+    return ratio(plain, 30), ratio(kf, 3)
 
 
 def report(r: dict, command: str) -> str:

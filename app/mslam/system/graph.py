@@ -223,8 +223,10 @@ def match_decoded(
     """:func:`match_pairs` given the forward decodes ``fwd[e] = prior.pair(i, j)``.
 
     ``known`` maps (frame index of i, frame index of j) to a decode ``prior.pair`` already
-    returned for those frames (the frontend's last tracking pair); the prior is deterministic,
-    so reusing it is exact.
+    returned for those frames (the frontend's last tracking pair). For a prior whose ``pair``
+    is a function of the two frames (synthetic, RGB-D, MASt3R) reusing it is exact; the
+    two-view prior remembers depths across pairs, so there a skipped decode changes what it
+    remembers (still a valid decode of the pair).
     """
     from mslam_ref.tracking import match_quality
 
