@@ -241,3 +241,27 @@ def test_cli_runs_an_rgb_image_folder_with_the_twoview_prior(seq, tmp_path, caps
     assert s["prior"] == "twoview" and s["frames"] == 6 and not s["calibrated"]
     assert s["config"]["tracking"]["match_frac_thresh"] == 0.5
     assert s["frames_with_pose"] >= 4
+
+
+def test_cli_runs_a_video_with_the_twoview_prior(seq, tmp_path):
+    """A video file (MJPG .avi: lossy frames) runs RGB-only end to end like an image folder."""
+    import json
+
+    import cv2
+
+    from mslam.cli import main
+
+    path = tmp_path / "clip.avi"
+    H, W = seq[0].rgb.shape[:2]
+    wr = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 15.0, (W, H))
+    if not wr.isOpened():
+        pytest.skip("OpenCV build cannot write MJPG video")
+    for i in range(0, 12, 2):
+        wr.write(cv2.cvtColor(seq[i].rgb, cv2.COLOR_RGB2BGR))
+    wr.release()
+    out = tmp_path / "out"
+    args = ["run", str(path), "--out", str(out), "--prior", "twoview", "--kernels", "ref"]
+    assert main([*args, "--quiet"]) == 0
+    s = json.loads((out / "summary.json").read_text())
+    assert s["prior"] == "twoview" and s["frames"] == 6
+    assert s["frames_with_pose"] >= 4

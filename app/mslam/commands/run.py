@@ -95,8 +95,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-#: Longest image side the RGB-D prior runs at usable speed on a CPU (its feature matching, PnP
-#: and ICP cost ~0.2 s per pair at 160x120 and ~12 s at 640x480).
+#: Longest image side the RGB-D prior may run at without asking (a whole frame costs ~0.2 s at
+#: 160x120 and ~0.8 s at 512x384 on 2 cores, benchmarks/RESULTS.md; more at the full size).
 RGBD_MAX_AUTO_SIDE = 320
 
 
@@ -108,8 +108,9 @@ def _check_resolution(source, cfg) -> None:
     if max(H, W) > RGBD_MAX_AUTO_SIDE:
         raise UserError(
             f"this config runs the RGB-D prior at the full {W}x{H} (dataset.long_side = 0), "
-            "about 12 s per frame pair on a CPU; add --set dataset.long_side=160 (the rgbd "
-            f"config's working size) or --set dataset.long_side={max(H, W)} to insist"
+            "about a second per frame on 2 CPU cores; add --set dataset.long_side=160 (the rgbd "
+            "config's working size), use --config rgbd_512 (the paper's 512 px), or "
+            f"--set dataset.long_side={max(H, W)} to insist"
         )
 
 
