@@ -143,13 +143,23 @@ class SlamConfig:
         """``mslam_ref.backend.BackendConfig`` from ``local_opt.*``."""
         return self._typed("backend", "BackendConfig", "local_opt")
 
-    def backend_pixel_stride(self, shape: tuple[int, int]) -> int:
-        """Stride of the pixel grid that keeps about ``local_opt.pixels_per_edge`` residuals
-        per directed block of an (H, W) pointmap (1 = every pixel, also when the key is 0)."""
-        budget = int(dict(self.sections.get("local_opt", {})).get("pixels_per_edge", 0))
+    def _grid_stride(self, section: str, key: str, shape: tuple[int, int]) -> int:
+        budget = int(dict(self.sections.get(section, {})).get(key, 0))
         if budget <= 0:
             return 1
         return max(1, int((shape[0] * shape[1] / budget) ** 0.5))
+
+    def backend_pixel_stride(self, shape: tuple[int, int]) -> int:
+        """Stride of the pixel grid that keeps about ``local_opt.pixels_per_edge`` residuals
+        per directed block of an (H, W) pointmap (1 = every pixel, also when the key is 0).
+        The graph step matches only these pixels of each edge."""
+        return self._grid_stride("local_opt", "pixels_per_edge", shape)
+
+    def tracking_pixel_stride(self, shape: tuple[int, int]) -> int:
+        """Stride of the keyframe-pixel grid that tracking matches and solves on: about
+        ``tracking.pixels_per_frame`` pixels of an (H, W) keyframe (1 = every pixel, also
+        when the key is 0, upstream's choice)."""
+        return self._grid_stride("tracking", "pixels_per_frame", shape)
 
     def retrieval(self) -> Any:
         """``mslam_ref.retrieval.RetrievalConfig`` from ``retrieval.*`` (the one place the

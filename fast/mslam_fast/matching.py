@@ -7,10 +7,12 @@ runs one pixel per thread (``ti.ndrange(B, N)``).
 ``match`` runs everything in one kernel call, so nothing goes back to the host between stages:
 loop 1 writes the unit rays into a (B, H, W, 9) scratch image, loop 2 their Scharr gradients,
 loops 3 and 4 cast the descriptors to the runtime type into zeroed scratch rows (image 1 with a
-border of radius·dilation_max zero pixels, F padded to a multiple of 8), loop 5 runs the LM
+border of radius·dilation_max zero pixels, F padded to a multiple of 8; of image 2 only the
+pixels with a point, the only ones refined), loop 5 runs the LM
 (10 iterations, all taps of the 9-channel image per sample, the accepted sample re-used by the
 next iteration), the truncation and distance test, and writes the truncated positions to
-``idx``; loop 6 (only if radius > 0) refines them in place (245 dot products of length F; the
+``idx``; loop 6 (only if radius > 0) refines them in place, skipping pixels whose own point is
+zero (245 dot products of length F; the
 7 candidates of a column share one vectorised loop over F, and the zero border replaces the
 inside-image test). ``radius`` is a compile-time constant of the
 kernels (one compilation per value).
@@ -178,8 +180,11 @@ def _match_k(
     _ray_image(X11, RG)
     H, W = X11.shape[1], X11.shape[2]
     K.pad_descriptors(D11, D1p, H, W, radius * dmax)  # top level (parallel): no `if radius > 0`
-    _copy_rows(D21, D2p)
     N = H * W
+    for r, k in ti.ndrange(D21.shape[0], D21.shape[1]):  # rows of pixels with a point only
+        b, n = r // N, r % N
+        if X21[b, n, 0] != 0.0 or X21[b, n, 1] != 0.0 or X21[b, n, 2] != 0.0:
+            D2p[r, k] = ti.cast(D21[r, k], float)
     for b, g in ti.ndrange(X21.shape[0], (N + lanes - 1) // lanes):
         T = _targets(X21, b, g, N, lanes)
         u0 = ti.Vector([0.0] * lanes)
@@ -207,19 +212,21 @@ def _match_k(
                 valid[b, n] = ti.cast(1 if ok else 0, ti.u8)
     if ti.static(radius > 0):  # loop 6: refinement from the truncated LM positions in idx
         for b, n in ti.ndrange(X21.shape[0], N):
-            u, v = K.refine_pixel(
-                D1p,
-                D2p,
-                b,
-                b * N + n,
-                ti.cast(idx[b, n] % W, ti.i32),
-                ti.cast(idx[b, n] // W, ti.i32),
-                H,
-                W,
-                radius,
-                dmax,
-            )
-            idx[b, n] = ti.cast(u, ti.i64) + ti.cast(W, ti.i64) * ti.cast(v, ti.i64)
+            X2 = ti.Vector([X21[b, n, 0], X21[b, n, 1], X21[b, n, 2]])
+            if ti.sqrt(K.dot3(X2, X2)) > K.NORM_EPS:  # a pixel without a point is not refined
+                u, v = K.refine_pixel(
+                    D1p,
+                    D2p,
+                    b,
+                    b * N + n,
+                    ti.cast(idx[b, n] % W, ti.i32),
+                    ti.cast(idx[b, n] // W, ti.i32),
+                    H,
+                    W,
+                    radius,
+                    dmax,
+                )
+                idx[b, n] = ti.cast(u, ti.i64) + ti.cast(W, ti.i64) * ti.cast(v, ti.i64)
 
 
 # --- host wrappers -------------------------------------------------------------------------

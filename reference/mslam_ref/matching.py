@@ -328,7 +328,7 @@ def match(
         p*    = iter_proj(ray image of X11, X21, p_init)        (float, clamped)
         p1    = ⌊p*⌋                                              (truncation, p* >= 1)
         valid = converged ∧ ‖X11[p1] − X21[n]‖ < dist_thresh      (before refinement)
-        p1    = refine_matches(D11, D21, p1)  if radius > 0
+        p1    = refine_matches(D11, D21, p1)  if radius > 0 and X21[n] ≠ 0
         idx   = u + W v
 
     Args:
@@ -342,6 +342,10 @@ def match(
         idx_1_to_2: (N,) or (B, N) int64, for every pixel n of image 2 the linear index
             ``u + W v`` of its match in image 1.
         valid: (N,) or (B, N) bool. Zero or non-finite points (own or matched) are invalid.
+            A pixel n whose own point ``X21[n]`` is zero or non-finite is not matched at all:
+            its LM keeps the start and the refinement skips it (``idx`` is the start pixel,
+            clamped to the image interior), so zeroing the points of the pixels one does not
+            need is how a caller matches a subset (``mslam``'s pixel grids).
     """
     X1, X2, D1, D2, idx0, batched = check_match_inputs(X11, X21, D11, D21, idx_init)
     X1, X2 = _points(X1, "X11"), _points(X2, "X21")
@@ -355,8 +359,11 @@ def match(
     X1_at = X1f[np.arange(B)[:, None], lin]
     diff = X1_at - X2f
     dist_ok = np.sqrt(_dot3(diff, diff)) < cfg.dist_thresh
-    valid = converged & dist_ok & _point_ok(X2f) & _point_ok(X1_at)
+    own_ok = _point_ok(X2f)
+    valid = converged & dist_ok & own_ok & _point_ok(X1_at)
     if cfg.radius > 0:
-        p1 = refine_matches(D1, D2.reshape(B, N, F), p1, cfg)
+        # A pixel without a point is not refined: it keeps the truncated start, so a caller
+        # that zeroes the points it does not need (a pixel grid) pays for those only.
+        p1 = np.where(own_ok[..., None], refine_matches(D1, D2.reshape(B, N, F), p1, cfg), p1)
     idx = p1[..., 0] + W * p1[..., 1]
     return (idx, valid) if batched else (idx[0], valid[0])

@@ -12,7 +12,7 @@ and centre crop (the image operations themselves, which need OpenCV, live in the
 application's ``mslam.datasets.images``) and the network's input normalisation to [-1, 1].
 
 Public functions, in reading order:
-    check_K, intrinsics_from_fov, pixel_grid, camera_rays, backproject, project, normalize_rays,
+    check_K, intrinsics_from_fov, pixel_grid, strided_pixels, camera_rays, backproject, project, normalize_rays,
     scale_intrinsics, intrinsics_after_resize, network_input
 """
 
@@ -33,6 +33,7 @@ __all__ = [
     "network_input",
     "normalize_rays",
     "pixel_grid",
+    "strided_pixels",
     "project",
     "scale_intrinsics",
 ]
@@ -79,6 +80,20 @@ def pixel_grid(H: int, W: int) -> FloatArray:
     _check_size(H, W)
     v, u = np.mgrid[0:H, 0:W].astype(np.float64)
     return np.stack([u, v], axis=-1)
+
+
+def strided_pixels(H: int, W: int, stride: int) -> np.ndarray:
+    """(H, W) bool mask of a regular pixel grid: every ``stride``-th row and column, starting
+    at ``stride // 2`` (all pixels when ``stride`` is 1).
+
+    The subsets of pixels that carry residuals or matches when not every pixel is needed
+    (about ``H·W / stride²`` of them, spread evenly over the image).
+    """
+    if stride < 1:
+        raise ValueError(f"stride: expected >= 1, got {stride}")
+    grid = np.zeros((H, W), dtype=bool)
+    grid[stride // 2 :: stride, stride // 2 :: stride] = True
+    return grid
 
 
 def camera_rays(K: FloatArray, H: int, W: int) -> FloatArray:

@@ -41,7 +41,7 @@ def test_synthetic_prior_cache_stays_within_its_bytes():
     from mslam.priors.synthetic import SyntheticPrior, SyntheticPriorConfig
 
     seq = make_sequence("loop", n_frames=8, width=32, height=24)
-    per_frame = 32 * 24 * (24 + 1) * 8  # descriptors and contrast, float64
+    per_frame = 32 * 24 * (24 * 4 + 8)  # float32 descriptors and float64 contrast
     cfg = SyntheticPriorConfig(
         desc=dataclasses.replace(DescriptorConfig(), cache_bytes=3 * per_frame)
     )

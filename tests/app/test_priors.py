@@ -122,14 +122,14 @@ def test_covisibility_lowers_confidence(seq) -> None:
 def test_patch_descriptors_discriminate(seq) -> None:
     D, contrast = patch_descriptors(seq[0].rgb)
     assert D.shape == (H, W, DESC_DIM) and contrast.shape == (H, W)
-    np.testing.assert_allclose(np.linalg.norm(D, axis=-1), 1.0, atol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(D, axis=-1), 1.0, atol=1e-6)  # float32
     # A pixel is more similar to itself shifted by one pixel than to random pixels.
     near = (D[:, 1:] * D[:, :-1]).sum(-1).mean()
     rng = np.random.default_rng(0)
     far = (D.reshape(-1, DESC_DIM) * rng.permutation(D.reshape(-1, DESC_DIM))).sum(-1).mean()
     assert near > far + 0.3
     flat = patch_descriptors(np.full((8, 8, 3), 120, np.uint8))[0]
-    np.testing.assert_allclose(np.linalg.norm(flat, axis=-1), 1.0, atol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(flat, axis=-1), 1.0, atol=1e-6)  # float32
 
 
 def test_check_prediction_rejects_bad_outputs(seq) -> None:

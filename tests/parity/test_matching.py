@@ -199,6 +199,28 @@ def test_match_zero_and_nonfinite_points(fast: str) -> None:
         _assert_share(v_f, v_r, fast, "valid with bad points")
 
 
+@pytest.mark.parametrize("stride", [2, 4])
+def test_match_on_a_pixel_grid_equals_matching_everything(fast: str, stride: int) -> None:
+    """Zeroing the points outside a grid matches the grid only: on the grid both kernel sets
+    give what they give when every pixel is matched, off it the clamped start, never valid."""
+    from mslam_fast import matching as fm
+
+    X11, X21, D11, D21 = PAIRS["prior-far" if HAVE_PRIOR else "analytic"]
+    H, W = X11.shape[:2]
+    grid = np.zeros((H, W), bool)
+    grid[stride // 2 :: stride, stride // 2 :: stride] = True
+    X21_grid = np.where(grid[..., None], X21, 0.0)
+    on, off = grid.reshape(-1), ~grid.reshape(-1)
+    start = np.clip(np.arange(H * W) % W, 1, W - 2) + W * np.clip(np.arange(H * W) // W, 1, H - 2)
+    for mod in (ref, fm):
+        i_all, v_all = mod.match(X11, X21, D11, D21)
+        i_grid, v_grid = mod.match(X11, X21_grid, D11, D21)
+        np.testing.assert_array_equal(i_grid[on], i_all[on])
+        np.testing.assert_array_equal(v_grid[on], v_all[on])
+        np.testing.assert_array_equal(i_grid[off], start[off])
+        assert not v_grid[off].any()
+
+
 def test_fast_rejects_bad_inputs_like_reference(fast: str) -> None:
     from mslam_fast import matching as fm
 

@@ -43,6 +43,7 @@ from mslam.datasets.frame import Frame
 from mslam.priors import rgbd_pose as pose
 from mslam.priors.base import PairPrediction
 from mslam.priors.descriptors import DescriptorConfig, patch_descriptors
+from mslam.priors.keypoints import ratio_matches
 from mslam_ref import sim3
 from mslam_ref.conventions import FloatArray
 from mslam_ref.pointmap import backproject, project, scale_intrinsics
@@ -230,16 +231,9 @@ class RGBDPrior:
         uv_j, d_j = self._cached("features", frame_j, self._features)
         if d_i is None or d_j is None or len(uv_i) < 2 or len(uv_j) < 2:
             return sim3.identity(), 0
-        norm = cv2.NORM_L2 if cfg.features == "sift" else cv2.NORM_HAMMING
-        knn = cv2.BFMatcher(norm).knnMatch(d_j, d_i, k=2)
-        pairs = [
-            (m[0].queryIdx, m[0].trainIdx)
-            for m in knn
-            if len(m) == 2 and m[0].distance < cfg.ratio * m[1].distance
-        ]
-        if len(pairs) < cfg.min_inliers:
+        qj, ti = ratio_matches(d_j, d_i, cfg.ratio)
+        if len(qj) < cfg.min_inliers:
             return sim3.identity(), 0
-        qj, ti = np.array(pairs).T
         # One-to-one: a keypoint of i claimed by several keypoints of j is ambiguous. On blurred
         # frames one featureless keypoint can attract dozens of matches, which RANSAC then
         # "explains" with a camera 1e13 m away (every point projects onto that pixel).

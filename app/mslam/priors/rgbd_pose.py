@@ -18,7 +18,7 @@ import numpy as np
 
 from mslam_ref import sim3, so3
 from mslam_ref.conventions import FloatArray
-from mslam_ref.pointmap import backproject
+from mslam_ref.pointmap import backproject, strided_pixels
 
 __all__ = ["icp_agrees", "icp_sample", "normals", "pnp", "refine_icp"]
 
@@ -89,9 +89,7 @@ def icp_sample(valid: np.ndarray, n_points: int) -> np.ndarray:
     stride = max(1, int(np.sqrt(valid.sum() / max(n_points, 1))))
     if stride == 1:
         return valid
-    grid = np.zeros_like(valid)
-    grid[stride // 2 :: stride, stride // 2 :: stride] = True
-    return valid & grid
+    return valid & strided_pixels(*valid.shape, stride)
 
 
 def refine_icp(

@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from mslam.priors.keypoints import ratio_matches
 from mslam.priors.twoview_geometry import _grey, dense_flow, forward_backward_error
 from mslam_ref.conventions import FloatArray
 
@@ -103,12 +104,9 @@ def sparse_matches(kp_i, kp_j, ratio: float = 0.8) -> tuple[FloatArray, FloatArr
     empty = (np.zeros((0, 2)), np.zeros((0, 2)))
     if d_i is None or d_j is None or len(uv_i) < 2 or len(uv_j) < 2:
         return empty
-    knn = cv2.BFMatcher(cv2.NORM_L2).knnMatch(d_i, d_j, k=2)
-    pairs = [(m[0].queryIdx, m[0].trainIdx) for m in knn
-             if len(m) == 2 and m[0].distance < ratio * m[1].distance]  # fmt: skip
-    if not pairs:
+    qi, tj = ratio_matches(d_i, d_j, ratio)
+    if len(qi) == 0:
         return empty
-    qi, tj = np.array(pairs).T
     _, inv, counts = np.unique(tj, return_inverse=True, return_counts=True)
     once = counts[inv] == 1
     return uv_i[qi[once]], uv_j[tj[once]]

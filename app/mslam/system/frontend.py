@@ -54,12 +54,27 @@ from mslam.system.state import FramePose, Mode, RunStats
 from mslam.system.worker import BackendWorker, SharedPrior
 from mslam_ref import sim3
 from mslam_ref.conventions import FloatArray
+from mslam_ref.pointmap import strided_pixels
 
 __all__ = ["FramePose", "Mode", "RunStats", "SlamSystem"]
 
 
 def _flat(a: np.ndarray) -> np.ndarray:
     return a.reshape(-1, a.shape[-1]) if a.ndim == 3 else a.reshape(-1)
+
+
+def _grid_cells(idx: np.ndarray, shape: tuple[int, int], stride: int) -> np.ndarray:
+    """Frame pixels ``idx`` as the indices of the ``stride`` x ``stride`` cells they fall in,
+    numbered like the grid's own pixels (``strided_pixels``), so that counting distinct cells
+    reached by the grid's matches is the new-keyframe test's "distinct frame pixels" at the
+    grid's resolution. Identity when ``stride`` is 1."""
+    if stride == 1:
+        return idx
+    H, W = shape
+    rows, cols = len(range(stride // 2, H, stride)), len(range(stride // 2, W, stride))
+    u = np.minimum((idx % W) // stride, cols - 1)
+    v = np.minimum((idx // W) // stride, rows - 1)
+    return u + cols * v
 
 
 class SlamSystem:
@@ -253,22 +268,32 @@ class SlamSystem:
         H, W = p.X_ii.shape[:2]
         if (H, W) != kf.shape:
             raise ValueError(f"frame {frame.index}: pointmap shape {(H, W)} != keyframe {kf.shape}")
+        stride = self.cfg.tracking_pixel_stride((H, W))
+        grid = strided_pixels(H, W, stride)
+        X_ji = p.X_ji if stride == 1 else np.where(grid[..., None], p.X_ji, 0.0)
         with self.timer("matching"):
             idx_f2k, valid_match_k = kr.matching.match(
-                p.X_ii, p.X_ji, p.D_ii, p.D_ji, self.idx_f2k, self.matching_cfg
+                p.X_ii, X_ji, p.D_ii, p.D_ji, self.idx_f2k, self.matching_cfg
             )
         idx_f2k = np.asarray(idx_f2k, np.int64)
         valid_match_k = np.asarray(valid_match_k, bool).reshape(-1)
         self.idx_f2k = idx_f2k
+        # Keyframe pixels that take part: all (upstream), or the grid (tracking.pixels_per_frame).
+        # In calibrated mode the solve needs the keyframe's (H, W) layout, so all are passed.
+        g = np.flatnonzero(grid) if stride > 1 else slice(None)
+        s = g if self.K is None else slice(None)
         with self.timer("tracking"):
-            Q_k = tr.match_quality(_flat(p.Q_ii), _flat(p.Q_ji), idx_f2k)
+            Q_k = tr.match_quality(_flat(p.Q_ii), _flat(p.Q_ji)[s], idx_f2k[s])
             state_f = self._fusion_ref.init_pointmap(_flat(p.X_ii), _flat(p.C_ii), self.fusion_cfg)
-            X_f = self._constrain(state_f.X_canon, (H, W))[idx_f2k]
-            X_k = self._constrain(kf.state.X_canon, (H, W))
-            C_f = np.asarray(self._fusion_ref.average_confidence(state_f)).reshape(-1)[idx_f2k]
-            C_k = np.asarray(self._fusion_ref.average_confidence(kf.state)).reshape(-1)
-            valid_opt, valid_kf = tr.tracking_masks(valid_match_k, C_f, C_k, Q_k, self.tracking_cfg)
-            if float(np.mean(valid_opt)) < self.tracking_cfg.min_match_frac:
+            X_f = self._constrain(state_f.X_canon, (H, W))[idx_f2k[s]]
+            X_k = self._constrain(kf.state.X_canon, (H, W))[s]
+            C_f = np.asarray(self._fusion_ref.average_confidence(state_f)).reshape(-1)[idx_f2k[s]]
+            C_k = np.asarray(self._fusion_ref.average_confidence(kf.state)).reshape(-1)[s]
+            valid_opt, valid_kf = tr.tracking_masks(
+                valid_match_k[s], C_f, C_k, Q_k, self.tracking_cfg
+            )
+            on = slice(None) if self.K is None else g
+            if float(np.mean(valid_opt[on])) < self.tracking_cfg.min_match_frac:
                 self._record(frame, -1, None, "lost")
                 return "lost"
             T_init = sim3.mul(sim3.inv(kf.T_WC), self.T_WC_last)
@@ -287,7 +312,14 @@ class SlamSystem:
             state = kr.fusion.update_pointmap(kf.state, X_kk, _flat(p.C_ji), self.fusion_cfg)
             with self.lock:
                 kf.state = state
-        new_kf = bool(tr.needs_new_keyframe(idx_f2k, valid_match_k, valid_kf, self.tracking_cfg))
+        new_kf = bool(
+            tr.needs_new_keyframe(
+                _grid_cells(idx_f2k[g], (H, W), stride),
+                valid_match_k[g],
+                valid_kf[on],
+                self.tracking_cfg,
+            )
+        )
         if fallback:
             self.idx_f2k = None  # the matches belong to the older keyframe
         new_kf = (new_kf or force_keyframe) and allow_keyframe and not fallback

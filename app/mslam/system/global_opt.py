@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from mslam_ref import backend
+from mslam_ref.pointmap import strided_pixels
 
 __all__ = ["add_keyframe_edges", "backend_step", "residual_grid", "solve_backend"]
 
@@ -62,6 +63,7 @@ def add_keyframe_edges(system: Any, k: int) -> int:
         min_match_frac=system.backend_cfg.min_match_frac,
         kind="retrieval",
         known=system.last_pair(),
+        stride=system.cfg.backend_pixel_stride(kf.shape),
     )
     return len(system.graph) - before
 
@@ -73,10 +75,7 @@ def residual_grid(shape: tuple[int, int], stride: int) -> np.ndarray:
     resolution times the number of edges; ``local_opt.pixels_per_edge`` caps the pixels per
     directed block (``SlamConfig.backend_pixel_stride``).
     """
-    H, W = shape
-    grid = np.zeros((H, W), bool)
-    grid[stride // 2 :: stride, stride // 2 :: stride] = True
-    return grid.reshape(-1)
+    return strided_pixels(*shape, stride).reshape(-1)
 
 
 def solve_backend(system: Any) -> dict[str, Any] | None:

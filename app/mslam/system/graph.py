@@ -30,6 +30,7 @@ import numpy as np
 from mslam.datasets.frame import Frame
 from mslam_ref import backend
 from mslam_ref.conventions import BoolArray, FloatArray, IntArray
+from mslam_ref.pointmap import strided_pixels
 
 __all__ = [
     "Edge",
@@ -219,8 +220,14 @@ def match_decoded(
     matching_cfg: Any,
     Q_conf: float,
     known: dict[tuple[int, int], Any] | None = None,
+    stride: int = 1,
 ) -> list[Edge]:
     """:func:`match_pairs` given the forward decodes ``fwd[e] = prior.pair(i, j)``.
+
+    ``stride > 1`` matches only the pixels of the backend's residual grid
+    (``mslam_ref.pointmap.strided_pixels``; ``local_opt.pixels_per_edge``): the other pixels'
+    points are zeroed, which the matcher skips (their matches are never valid, and the solve
+    never reads them), and the match fraction is taken over the grid.
 
     ``known`` maps (frame index of i, frame index of j) to a decode ``prior.pair`` already
     returned for those frames (the frontend's last tracking pair). For a prior whose ``pair``
@@ -232,16 +239,22 @@ def match_decoded(
 
     known = known or {}
     edges = []
+    grid = None
     for e, (i, j) in enumerate(zip(ii, jj)):
         p = fwd[e]
         fi, fj = store[j].frame, store[i].frame
         q = known.get((int(fi.index), int(fj.index))) or prior.pair(fi, fj)  # X_jj, X_ij in j
+        if grid is None:
+            grid = strided_pixels(*p.X_ii.shape[:2], stride)
+        X_ji = np.stack([p.X_ji, q.X_ji])
+        if stride > 1:
+            X_ji = np.where(grid[None, ..., None], X_ji, 0.0)
         # One call for both directions: pair 0 gives idx_i2j, pair 1 idx_j2i. Edge by edge
         # (not all edges in one batch): the stacked descriptors of 2E pairs were the run's
         # memory peak at 512x384 (38 MB per pair and copy).
         idx, valid = kernels.matching.match(
             np.stack([p.X_ii, q.X_ii]),
-            np.stack([p.X_ji, q.X_ji]),
+            X_ji,
             np.stack([p.D_ii, q.D_ii]),
             np.stack([p.D_ji, q.D_ji]),
             None,
@@ -251,8 +264,9 @@ def match_decoded(
         valid = np.asarray(valid, dtype=bool).reshape(idx.shape)
         Q_j = match_quality(_flat(p.Q_ii), _flat(p.Q_ji), idx[0])
         Q_i = match_quality(_flat(q.Q_ii), _flat(q.Q_ji), idx[1])
-        frac_j = float(np.mean(valid[0] & (Q_j > Q_conf)))
-        frac_i = float(np.mean(valid[1] & (Q_i > Q_conf)))
+        on = grid.reshape(-1)
+        frac_j = float(np.mean((valid[0] & (Q_j > Q_conf))[on]))
+        frac_i = float(np.mean((valid[1] & (Q_i > Q_conf))[on]))
         edges.append(
             Edge(int(i), int(j), idx[0], idx[1], valid[0], valid[1], Q_j, Q_i, min(frac_j, frac_i))
         )
@@ -286,6 +300,7 @@ class FactorGraph:
         is_reloc: bool = False,
         kind: str = "retrieval",
         known: dict[tuple[int, int], Any] | None = None,
+        stride: int = 1,
     ) -> bool:
         """Match candidate pairs and store the accepted edges; True if at least one was added.
 
@@ -294,7 +309,7 @@ class FactorGraph:
         Acceptance: an edge is invalid when ``match_frac < min_match_frac`` and it is not
         consecutive (``i == j - 1``); with ``is_reloc`` (strict) any invalid edge rejects all.
         Consecutive edges get ``kind = "consecutive"``, the others ``kind``. ``known``: decodes
-        already made, as in :func:`match_decoded`.
+        already made, and ``stride``, the residual grid to match, as in :func:`match_decoded`.
         """
         fwd = [prior.pair(store[i].frame, store[j].frame) for i, j in zip(ii, jj)]
         # Early exit: a non-consecutive candidate whose forward decode cannot pass the quality
@@ -308,7 +323,9 @@ class FactorGraph:
         if is_reloc and any(doomed):
             return False
         ii, jj, fwd = ([x for x, d in zip(seq, doomed) if not d] for seq in (ii, jj, fwd))
-        candidates = match_decoded(store, ii, jj, fwd, prior, kernels, matching_cfg, Q_conf, known)
+        candidates = match_decoded(
+            store, ii, jj, fwd, prior, kernels, matching_cfg, Q_conf, known, stride
+        )
         keep = []
         for e in candidates:
             consecutive = e.i == e.j - 1

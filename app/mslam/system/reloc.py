@@ -67,6 +67,7 @@ def relocalise(system: Any, frame: Frame) -> bool:
         min_match_frac=system.cfg.reloc.min_match_frac,
         is_reloc=False,
         kind="reloc",
+        stride=system.cfg.backend_pixel_stride(system.keyframes[n].shape),
     )
     accepted = [e.j for e in system.graph.edges[before:]]
     if not accepted or (system.cfg.reloc.strict and candidates[0] not in accepted):

@@ -131,7 +131,8 @@ def lm_lanes(
         S0 = sample9(RG, b, u[l], v[l])
         for c in ti.static(range(9)):
             S[l, c] = S0[c]
-    for _ in range(max_iter):
+    n_iter = max_iter if act.sum() > 0 else 0  # a group of zero targets runs no iteration
+    for _ in range(n_iter):
         for l in ti.static(range(L)):
             t = ti.Vector([T[l, 0], T[l, 1], T[l, 2]])
             Sl = ti.Vector([S[l, c] for c in ti.static(range(9))])
