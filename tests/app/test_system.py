@@ -86,14 +86,16 @@ def test_jump_relocalises_and_finishes():
 
     src, system, _ = _run(JUMP)
     n = len(src.sequence)
-    _j1, j2 = jump_indices(n)
+    (j,) = jump_indices(n)
     assert system.stats.frames == n
-    assert system.stats.lost_frames >= 1
-    assert system.stats.relocalisations >= 1
+    assert system.poses[j].status == "lost"  # the kidnap: nothing of the last keyframe in view
+    assert all(p.status != "lost" for p in system.poses[:j])
     reloc = [p for p in system.poses if p.status == "relocalised"]
-    assert reloc and reloc[0].index >= j2  # back on the first arc only after the second jump
+    assert reloc and j < reloc[0].index <= j + 5  # back on the mapped arc within five frames
+    assert system.stats.relocalisations == 1
     assert any(e.kind == "reloc" for e in system.graph.edges)
     assert system.poses[-1].status != "lost"
+    assert len(system.frame_poses()[0]) >= 0.9 * n
     ev = evaluate_run(system, src.sequence)
     assert ev["ate"]["ate_rmse"] < 0.05 * ev["path_length"]
 

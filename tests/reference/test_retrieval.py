@@ -228,14 +228,14 @@ def test_revisited_texture_view_ranks_first() -> None:
     reason="mslam.priors.synthetic not available",
 )
 def test_synthetic_room_revisit_is_retrieved() -> None:
-    """The ``jump`` path retraces its first arc: each retraced keyframe retrieves a keyframe
+    """The ``detour`` path retraces its first arc: each retraced keyframe retrieves a keyframe
     of the same place (view distance < 0.5 m) as its best non-recent candidate."""
     from mslam.datasets.synthetic import make_sequence
     from mslam.priors.synthetic import SyntheticPrior
     from mslam_ref import sim3
 
     n = 40
-    seq = make_sequence("jump", n_frames=n, width=96, height=72, seed=0)
+    seq = make_sequence("detour", n_frames=n, width=96, height=72, seed=0)
     prior = SyntheticPrior(seq)
     kf = list(range(0, n, 3))
     feats, first = [], None

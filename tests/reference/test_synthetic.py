@@ -8,7 +8,15 @@ import pytest
 from mslam.datasets.synthetic import make_sequence
 from mslam_ref import sim3
 from mslam_ref.pointmap import backproject
-from mslam_ref.synthetic import PATHS, camera_path, cast_rays, jump_indices, make_scene, render
+from mslam_ref.synthetic import (
+    PATHS,
+    camera_path,
+    cast_rays,
+    detour_indices,
+    jump_indices,
+    make_scene,
+    render,
+)
 
 W, H = 64, 48
 
@@ -61,7 +69,9 @@ def test_depth_is_z_along_optical_axis() -> None:
     np.testing.assert_allclose(t, n, rtol=1e-12, atol=1e-12)
 
 
-@pytest.mark.parametrize(("name", "i", "j"), [("loop", 0, 2), ("jump", 1, 3), ("forward", 0, 2)])
+@pytest.mark.parametrize(
+    ("name", "i", "j"), [("loop", 0, 2), ("jump", 1, 3), ("detour", 1, 3), ("forward", 0, 2)]
+)
 def test_two_frames_agree_on_shared_surfaces(name: str, i: int, j: int) -> None:
     """Back-project A under its GT pose, cast B's ray through each point: depths agree to 1e-9.
 
@@ -105,14 +115,42 @@ def test_paths_shape_the_motion() -> None:
     assert np.ptp(rot[:, 3:7], axis=0).max() > 0.1
     fwd = camera_path("forward", n, seed=0)
     assert np.all(np.diff(fwd[:, 0]) > 0)
-    jump = camera_path("jump", n, seed=0)
-    jsteps = np.linalg.norm(np.diff(jump[:, :3], axis=0), axis=1)
-    j1, j2 = jump_indices(n)
-    big = set(np.flatnonzero(jsteps > 10 * np.median(jsteps)) + 1)
-    assert big == {j1, j2}
+    detour = camera_path("detour", n, seed=0)
+    dsteps = np.linalg.norm(np.diff(detour[:, :3], axis=0), axis=1)
+    j1, j2 = detour_indices(n)
+    assert set(np.flatnonzero(dsteps > 10 * np.median(dsteps)) + 1) == {j1, j2}
     # After the second jump the camera is back near the first segment.
-    d = np.linalg.norm(jump[j2, :3] - jump[:j1, :3], axis=1).min()
+    d = np.linalg.norm(detour[j2, :3] - detour[:j1, :3], axis=1).min()
     assert d < 0.1
+    # Both paths share their seed stream: the same first arc up to the sweep of the heading.
+    jump = camera_path("jump", n, seed=0)
+    (j,) = jump_indices(n)
+    assert j == j1
+    np.testing.assert_allclose(jump[:j, :3], detour[:j, :3], atol=1e-12)
+    jsteps = np.linalg.norm(np.diff(jump[:, :3], axis=0), axis=1)
+    assert set(np.flatnonzero(jsteps > 10 * np.median(jsteps)) + 1) == {j}
+
+
+@pytest.mark.parametrize(("n", "seed"), [(30, 0), (48, 1), (80, 2)])
+def test_jump_is_a_kidnap_to_a_mapped_place(n: int, seed: int) -> None:
+    """Frame j shares no surface point with the three frames before it (tracking cannot
+    follow), frame 0 sees most of its pixels (relocalisation can succeed), and every later frame
+    overlaps a frame of the first half by at least 80 % (ground-truth covisibility)."""
+    from mslam.priors.synthetic import SyntheticPrior
+
+    seq = make_sequence("jump", n_frames=n, width=W, height=H, seed=seed)
+    prior = SyntheticPrior(seq)
+    (j,) = jump_indices(n)
+
+    def seen(a: int, b: int) -> float:
+        return float(prior.covisible(seq[a], seq[b]).mean())  # share of b's pixels a sees
+
+    assert max(seen(k, j) for k in range(j - 3, j)) == 0.0
+    assert seen(0, j) > 0.85
+    for i in range(j, n, 3):
+        assert max(seen(k, i) for k in range(j)) > 0.8, i
+    T = seq.T_WC
+    assert 0.02 < np.linalg.norm(T[j, :3] - T[0, :3]) < 0.05  # near, not on, the first pose
 
 
 def test_bad_arguments() -> None:

@@ -3,7 +3,8 @@
 Writes ``rgb/*.png``, ``depth/*.png`` (uint16, 5000 units per metre), ``rgb.txt``,
 ``depth.txt``, ``associations.txt``, ``groundtruth.txt`` (``timestamp tx ty tz qx qy qz qw``,
 camera-to-world), ``calib.yaml`` (``width``, ``height``, ``calibration: [fx, fy, cx, cy]``,
-``depth_scale``) and ``synth.json`` (name, seed, size, frames, jump indices). All or nothing:
+``depth_scale``) and ``synth.json`` (name, seed, size, frames and, for the ``jump`` and
+``detour`` paths, ``jump_indices``: the frames where the camera is relocated). All or nothing:
 the whole set is written into a temporary folder beside ``--out`` and moved into place in one
 rename (``mslam.commands.outdir``); a non-empty ``--out`` is refused unless ``--overwrite``.
 """
@@ -45,7 +46,7 @@ def run(args: argparse.Namespace) -> int:
     from mslam.commands.outdir import check_target, staged_folder
     from mslam.datasets.synthetic import make_sequence
     from mslam.datasets.tum import write_tum_sequence
-    from mslam_ref.synthetic import PATHS, check_synthetic_size, jump_indices
+    from mslam_ref.synthetic import PATHS, check_synthetic_size, detour_indices, jump_indices
 
     name = args.name.removeprefix("synthetic:")
     if name not in PATHS:
@@ -67,8 +68,9 @@ def run(args: argparse.Namespace) -> int:
         "calibration": [seq.K[0, 0], seq.K[1, 1], seq.K[0, 2], seq.K[1, 2]],
         "depth_scale": 5000.0,
     }
-    if name == "jump":
-        info["jump_indices"] = list(jump_indices(len(seq)))
+    teleports = {"jump": jump_indices, "detour": detour_indices}
+    if name in teleports:
+        info["jump_indices"] = list(teleports[name](len(seq)))
     with staged_folder(out, args.overwrite) as tmp:
         write_tum_sequence(seq, tmp, depth_scale=5000.0, overwrite=True)
         write_atomic(tmp / "synth.json", json.dumps(info, indent=2, allow_nan=False) + "\n")

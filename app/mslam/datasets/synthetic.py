@@ -131,7 +131,8 @@ def make_sequence(
     """A synthetic RGB-D sequence with ground truth: room from ``seed``, path ``name``.
 
     Args:
-        name: camera path, one of :data:`PATHS` (``loop``, ``jump``, ``rotation``, ``forward``).
+        name: camera path, one of :data:`PATHS` (``loop``, ``jump``, ``detour``, ``rotation``,
+            ``forward``).
         n_frames: number of frames (2 to ``mslam_ref.synthetic.MAX_FRAMES``).
         width, height: image size in pixels (at most ``mslam_ref.synthetic.MAX_PIXELS``).
         seed: seed of the scene and of the path's small variations (deterministic).

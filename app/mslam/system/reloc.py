@@ -14,9 +14,10 @@ whose scores for unrelated images are ~0, so every candidate above ``min_thresh`
 revisit. Our stand-in retrieval only ranks: every view of a room scores 0.01-0.2
 (docs/evaluation.md), so with ``k = 3`` the candidates are simply the three best keyframes, and
 a frame had to overlap all three by 30 % — with few keyframes, all of them. That is why the
-``jump`` path stayed lost for 14 frames after returning to mapped space and why a lost RGB-D
-run never recovered (docs/system.md, "Relocalisation"). Here a candidate whose edge fails is
-dropped instead; with ``reloc.strict`` the best-ranked candidate must pass, without it any one.
+``detour`` path (then called ``jump``) stayed lost for 14 frames after returning to mapped
+space and why a lost RGB-D run never recovered (docs/system.md, "Relocalisation"). Here a
+candidate whose edge fails is dropped instead; with ``reloc.strict`` the best-ranked candidate
+must pass, without it any one.
 
 Public names, in reading order:
     relocalise

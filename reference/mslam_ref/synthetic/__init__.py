@@ -3,20 +3,20 @@
 The built-in ground truth of the project: a closed room with textured walls, floor and
 ceiling, boxes and spheres (texture, occlusions, depth edges), rendered by exact ray casting
 in vectorised NumPy at any resolution, and named camera paths (``loop``, ``jump``,
-``rotation``, ``forward``) as camera-to-world Sim(3) poses. The application turns these into
-frame sequences (``mslam.datasets.synthetic.make_sequence``) and noisy MASt3R-like pointmaps
-(``mslam.priors.synthetic``).
+``detour``, ``rotation``, ``forward``) as camera-to-world Sim(3) poses. The application turns
+these into frame sequences (``mslam.datasets.synthetic.make_sequence``) and noisy MASt3R-like
+pointmaps (``mslam.priors.synthetic``).
 
 Public names, in reading order:
     MAX_FRAMES, MAX_PIXELS, check_synthetic_size, intrinsics, PATHS, camera_path, jump_indices,
-    Scene, make_scene, cast_rays, render
+    detour_indices, Scene, make_scene, cast_rays, render
 """
 
 from __future__ import annotations
 
 from mslam_ref.conventions import FloatArray
 from mslam_ref.pointmap import intrinsics_from_fov
-from mslam_ref.synthetic.paths import PATHS, camera_path, jump_indices
+from mslam_ref.synthetic.paths import PATHS, camera_path, detour_indices, jump_indices
 from mslam_ref.synthetic.scene import Scene, cast_rays, make_scene, render
 
 __all__ = [
@@ -27,6 +27,7 @@ __all__ = [
     "camera_path",
     "cast_rays",
     "check_synthetic_size",
+    "detour_indices",
     "intrinsics",
     "jump_indices",
     "make_scene",
