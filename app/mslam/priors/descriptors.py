@@ -101,11 +101,11 @@ def patch_descriptors(
     mean, mean_sq = _tap_mean(pad, H, W, cfg), _tap_mean(pad * pad, H, W, cfg)
     # P^T (z - m 1) = P^T z - m P^T 1, and the patch variance is mean(z²) - m².
     contrast = np.sqrt(np.maximum(mean_sq - mean * mean, 0.0))
-    D -= mean[..., None] * P.sum(axis=0)
-    D /= (contrast + np.float32(cfg.eps))[..., None]
+    D -= mean.astype(np.float32)[..., None] * P.sum(axis=0)  # float32 throughout: no temporaries
+    D *= (1.0 / (contrast + cfg.eps)).astype(np.float32)[..., None]  # of (H, W, F) float64
     # A fixed tiny offset keeps the norm away from zero on perfectly flat patches.
     D[..., 0] += np.float32(1e-6)
-    D /= np.linalg.norm(D, axis=-1, keepdims=True)
+    D *= (1.0 / np.sqrt(np.einsum("hwf,hwf->hw", D, D)))[..., None]
     return D, contrast
 
 
