@@ -220,14 +220,16 @@ def test_grid_cells_number_the_grid_pixels_one_to_one(H, W, stride) -> None:
     assert every.min() == 0 and every.max() == len(g) - 1
 
 
-def test_tracking_and_edges_on_pixel_grids_keep_the_run(fast64) -> None:
+@pytest.mark.parametrize("calib", ["false", "true"])
+def test_tracking_and_edges_on_pixel_grids_keep_the_run(fast64, calib: str) -> None:
     """Tracking on a stride-2 grid of keyframe pixels and graph edges matched on the backend's
-    stride-2 grid: every frame posed, the loop closed, ATE close to matching every pixel."""
+    stride-2 grid: every frame posed, the loop closed, ATE close to matching every pixel
+    (calibrated mode keeps the keyframe's layout and masks the pixels off the grid)."""
     source = "synthetic:loop:40:96x72"
     sets = {"all": [], "grid": ["tracking.pixels_per_frame=1728", "local_opt.pixels_per_edge=1728"]}
     out = {}
     for name, overrides in sets.items():
-        cfg = load_config(None, overrides)
+        cfg = load_config(None, [f"use_calib={calib}", *overrides])
         assert cfg.tracking_pixel_stride((72, 96)) == (2 if name == "grid" else 1)
         src = open_source(source, cfg)
         system, _ = run_slam(src, cfg, load_kernels("fast"))
