@@ -78,6 +78,19 @@ def stage_table(runs: list[tuple[str, dict]]) -> str:
     return table(["stage"] + [label for label, _ in runs], rows)
 
 
+def prior_step_table(runs: list[tuple[str, dict]]) -> str:
+    """Milliseconds per frame of the prior's sub-steps (columns: the runs)."""
+    names = sorted({k for _, r in runs for k in r.get("prior_steps", {})})
+    first = runs[0][1].get("prior_steps", {})
+    rows = []
+    for k in sorted(names, key=lambda k: -first.get(k, 0.0)):
+        cells = [
+            f"{1000 * r.get('prior_steps', {}).get(k, 0.0) / r['frames']:.1f}" for _, r in runs
+        ]
+        rows.append([k, *cells])
+    return table(["prior sub-step [ms/frame]"] + [label for label, _ in runs], rows)
+
+
 def resolution_bench(long_side: int, frames: int | None, ref_frames: int, config: str) -> str:
     """Run :data:`RUNS` at ``long_side`` with ``config``; returns the Markdown for RESULTS.md."""
     runs = []
@@ -102,5 +115,8 @@ def resolution_bench(long_side: int, frames: int | None, ref_frames: int, config
         + table(header, [summary_row(label, r) for label, r in runs])
         + "\n\nShare of the frame time per stage (the system's timers; with the background "
         "backend, `graph` and `backend` run beside the frontend, so shares can sum past 100 %):"
-        "\n\n" + stage_table(runs) + "\n"
+        "\n\n" + stage_table(runs) + "\n\nThe prior's sub-steps (RGBDPrior's timers over all its "
+        "calls: tracking, graph edges, relocalisation), milliseconds per frame:\n\n"
+        + prior_step_table(runs)
+        + "\n"
     )

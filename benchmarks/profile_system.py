@@ -65,6 +65,9 @@ def profile(
         "keyframes": len(system.keyframes),
         "seconds": sum(times),
         "stages": dict(system.stats.seconds),
+        # The RGB-D prior's own timers (SIFT, ratio test, PnP, ICP, ...): the sub-steps of the
+        # ``prior`` stage and of the prior calls inside ``graph`` and ``reloc``.
+        "prior_steps": dict(getattr(src.prior, "seconds", {})),
         "times": times,
         "statuses": statuses,
         "rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
@@ -90,6 +93,8 @@ def report(r: dict, command: str) -> str:
     rows.append(["(outside the timers)", f"{total - sum(r['stages'].values()):.1f}", ""])
     t = r["times"]
     first, last = sum(t[:30]) / len(t[:30]), sum(t[-30:]) / len(t[-30:])
+    steps = sorted(r.get("prior_steps", {}).items(), key=lambda kv: -kv[1])
+    sub = [[k, f"{v:.1f}", f"{1000 * v / r['frames']:.1f}"] for k, v in steps]
     return (
         f"`{command}`: 7-Scenes redkitchen, RGB-D prior, {r['size']}, {r['frames']} frames "
         f"({r['posed']} posed, {r['keyframes']} keyframes): **{r['frames'] / total:.2f} "
@@ -97,6 +102,8 @@ def report(r: dict, command: str) -> str:
         f"time {first:.2f} s over the first 30 frames, {last:.2f} s over the last 30 "
         f"(ratio {last / first:.2f}).\n\n"
         + table(["stage", "seconds", "share of frame time"], rows)
+        + "\n\nSub-steps of the prior (its calls in every stage):\n\n"
+        + table(["sub-step", "seconds", "ms per frame"], sub)
         + "\n"
     )
 

@@ -188,6 +188,9 @@ def test_rgbd_prior_on_synthetic_frames() -> None:
     assert n >= 15 and rot < 1.0 and trans < 0.03
     pred = prior.pair(fi, fj)
     check_prediction(pred)
+    # Every sub-step of the pair was timed (the profiles' prior table), and nothing else.
+    steps = {"features", "ratio", "pnp", "icp", "depth", "descriptors", "consistency"}
+    assert set(prior.seconds) == steps and all(v > 0 for v in prior.seconds.values())
     X, C = prior.mono(fj)
     assert np.all(C[:10] == 1.0) and np.all(C[10:] > 2.0) and np.all(X[..., 2] > 0)
     # Frames at another resolution: K is rescaled, the pose stays right.

@@ -33,6 +33,9 @@ Public names, in reading order:
 
 from __future__ import annotations
 
+import time
+from collections import defaultdict
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import cv2
@@ -182,9 +185,20 @@ class RGBDPrior:
         self.image_size = (int(image_size[0]), int(image_size[1]))
         self.cfg = cfg
         self.last_inliers = 0
+        #: Wall seconds per sub-step (``features``, ``ratio``, ``pnp``, ``icp``, ``depth``,
+        #: ``descriptors``, ``consistency``), for the profiles in benchmarks/.
+        self.seconds: defaultdict[str, float] = defaultdict(float)
         from mslam.priors.cache import ByteLRU
 
         self._cache = ByteLRU(cfg.desc.cache_bytes)  # bounded in bytes, not entries
+
+    @contextmanager
+    def _timed(self, step: str):
+        t0 = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.seconds[step] += time.perf_counter() - t0
 
     def _cached(self, kind: str, frame: Frame, fn):
         """Per-frame results (features, descriptors) keyed by index and image content."""
@@ -200,6 +214,10 @@ class RGBDPrior:
 
     # -- geometry ----------------------------------------------------------------------------
     def _features(self, frame: Frame):
+        with self._timed("features"):
+            return self._detect(frame)
+
+    def _detect(self, frame: Frame):
         grey = cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2GRAY)
         H, W = grey.shape
         f = max(1, int(np.ceil(self.cfg.detect_min_width / W)))
@@ -231,7 +249,8 @@ class RGBDPrior:
         uv_j, d_j = self._cached("features", frame_j, self._features)
         if d_i is None or d_j is None or len(uv_i) < 2 or len(uv_j) < 2:
             return sim3.identity(), 0
-        qj, ti = ratio_matches(d_j, d_i, cfg.ratio)
+        with self._timed("ratio"):
+            qj, ti = ratio_matches(d_j, d_i, cfg.ratio)
         if len(qj) < cfg.min_inliers:
             return sim3.identity(), 0
         # One-to-one: a keypoint of i claimed by several keypoints of j is ambiguous. On blurred
@@ -260,10 +279,12 @@ class RGBDPrior:
         obj = (rays * z[:, None])[ok]
         img = uv_i[ti][ok]
         for flags in (cv2.SOLVEPNP_EPNP, cv2.SOLVEPNP_ITERATIVE):
-            T_ij, n = pose.pnp(obj, img, Ki, flags, cfg)
+            with self._timed("pnp"):
+                T_ij, n = pose.pnp(obj, img, Ki, flags, cfg)
             if n >= cfg.min_inliers:
-                T_icp = pose.refine_icp(frame_i.depth, frame_j.depth, Ki, Kj, T_ij, cfg)
-                return pose.icp_agrees(T_icp, T_ij, obj, img, Ki, cfg), n
+                with self._timed("icp"):
+                    T_icp = pose.refine_icp(frame_i.depth, frame_j.depth, Ki, Kj, T_ij, cfg)
+                    return pose.icp_agrees(T_icp, T_ij, obj, img, Ki, cfg), n
         return sim3.identity(), n
 
     # -- protocol ----------------------------------------------------------------------------
@@ -271,6 +292,10 @@ class RGBDPrior:
         return self._cached("view", frame, self._compute_view)
 
     def _compute_view(self, frame: Frame) -> tuple[FloatArray, FloatArray, np.ndarray]:
+        with self._timed("depth"):
+            return self._depth_view(frame)
+
+    def _depth_view(self, frame: Frame) -> tuple[FloatArray, FloatArray, np.ndarray]:
         if frame.depth is None:
             raise ValueError(f"frame {frame.index}: the RGB-D prior needs a depth image")
         z, valid = fill_depth(frame.depth, self.cfg.fill_depth)
@@ -283,8 +308,12 @@ class RGBDPrior:
         return X, C, valid
 
     def _desc(self, frame: Frame) -> tuple[FloatArray, FloatArray]:
-        D, contrast = self._cached("desc", frame, lambda f: patch_descriptors(f.rgb, self.cfg.desc))
+        D, contrast = self._cached("desc", frame, self._patch_descriptors)
         return D, 1.0 + self.cfg.q_gain * np.tanh(contrast / self.cfg.q_contrast)
+
+    def _patch_descriptors(self, frame: Frame) -> tuple[FloatArray, FloatArray]:
+        with self._timed("descriptors"):
+            return patch_descriptors(frame.rgb, self.cfg.desc)
 
     def mono(self, frame: Frame) -> tuple[FloatArray, FloatArray]:
         """``X_ii (H, W, 3)`` from the (filled) depth and ``C_ii (H, W)``."""
@@ -311,7 +340,8 @@ class RGBDPrior:
             C_ji = np.ones_like(C_jj)
             Q_jj = np.full_like(Q_jj, FAILED_Q)
         else:
-            C_ji = self._consistency(X_ji, C_jj, frame_i, valid_i)
+            with self._timed("consistency"):
+                C_ji = self._consistency(X_ji, C_jj, frame_i, valid_i)
         return PairPrediction(X_ii, C_ii, D_ii, Q_ii, X_ji, C_ji, D_jj, Q_jj)
 
     def _consistency(self, X_ji, C_jj, frame_i: Frame, valid_i: np.ndarray) -> FloatArray:
