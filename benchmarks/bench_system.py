@@ -115,7 +115,8 @@ def main() -> None:
     ap.add_argument("--frames", type=int, help="with --resolution: the first N frames only")
     ap.add_argument(
         "--config",
-        help="with --resolution: the config (default: rgbd_512 from 400 px up, else rgbd)",
+        help="with --resolution: the config (default: rgbd_512 from 400 px up, rgbd_256 from "
+        "200 px, else rgbd)",
     )
     ap.add_argument(
         "--ref-frames", type=int, default=20, help="with --resolution: frames for the ref kernels"
@@ -124,7 +125,8 @@ def main() -> None:
     if args.resolution:
         from _resolution import resolution_bench
 
-        config = args.config or ("rgbd_512" if args.resolution >= 400 else "rgbd")
+        default = "rgbd_512" if args.resolution >= 400 else "rgbd_256"
+        config = args.config or (default if args.resolution >= 200 else "rgbd")
         n_ref = 0 if args.no_ref else args.ref_frames
         text = resolution_bench(args.resolution, args.frames, n_ref, config)
         print(text)

@@ -166,6 +166,15 @@ class SlamConfig:
         retrieval settings live; keys not in the YAML keep the dataclass defaults)."""
         return self._typed("retrieval", "RetrievalConfig", "retrieval")
 
+    def rgbd_prior(self) -> Any:
+        """``mslam.priors.rgbd.RGBDPriorConfig`` from ``rgbd_prior.*`` (keys not in the YAML
+        keep the dataclass defaults)."""
+        from mslam.priors.rgbd import RGBDPriorConfig
+
+        keys = {f.name for f in dataclasses.fields(RGBDPriorConfig)}
+        values = {k: v for k, v in dict(self.sections.get("rgbd_prior", {})).items() if k in keys}
+        return RGBDPriorConfig(**values)
+
 
 def _read_yaml(path: Path) -> dict[str, Any]:
     try:

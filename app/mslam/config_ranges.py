@@ -64,6 +64,11 @@ RANGES: dict[str, tuple[bool, float, float, bool]] = {
     "retrieval.k": (True, 1, 100, False),
     "retrieval.min_thresh": (False, 0, _INF, False),
     "reloc.min_match_frac": (False, 0, 1, False),
+    "rgbd_prior.n_features": (True, 10, 100_000, False),
+    "rgbd_prior.detect_min_width": (True, 0, 8192, False),
+    "rgbd_prior.detect_max_width": (True, 0, 8192, False),
+    "rgbd_prior.icp_iters": (True, 0, 1000, False),
+    "rgbd_prior.icp_points": (True, 100, 10_000_000, False),
 }
 
 

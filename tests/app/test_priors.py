@@ -174,6 +174,46 @@ def test_fill_depth() -> None:
     assert np.all(f0 == 4.0) and not v0.any()
 
 
+def test_icp_target_normals_and_cache() -> None:
+    """ICP's normals (a hand-written cross product) are the unit ``du × dv`` of central
+    differences, zero-marked at holes and borders; the prior computes them once per frame."""
+    from mslam.priors.rgbd import RGBDPrior
+    from mslam.priors.rgbd_pose import icp_target
+
+    rng = np.random.default_rng(3)
+    z = 1.0 + rng.random((30, 40))
+    z[5:9, 10:20] = 0.0
+    K = np.array([[50.0, 0, 19.5], [0, 50.0, 14.5], [0, 0, 1]])
+    Y, N, ok = icp_target(z, K)
+    X = backproject(z, K)
+    n = np.cross(X[1:-1, 2:] - X[1:-1, :-2], X[2:, 1:-1] - X[:-2, 1:-1])
+    ok2 = ok.reshape(30, 40)
+    n = n[ok2[1:-1, 1:-1]] / np.linalg.norm(n[ok2[1:-1, 1:-1]], axis=-1, keepdims=True)
+    assert np.array_equal(Y, X.reshape(-1, 3)) and not ok2[0].any() and not ok2[:, -1].any()
+    # The 4 x 10 hole and its 4-neighbours are marked (no diagonals): 40 + 8 + 20 pixels.
+    assert not ok2[5:9, 9:21].any() and not ok2[4:10, 10:20].any() and ok2[4, 9]
+    assert ok2.sum() == 28 * 38 - 68
+    assert np.allclose(N.reshape(30, 40, 3)[1:-1, 1:-1][ok2[1:-1, 1:-1]], n)
+    seq = make_sequence("forward", n_frames=20, width=160, height=120, seed=0)
+    prior = RGBDPrior(seq)
+    assert prior.relative_pose(seq[10], seq[13])[1] >= 15
+    assert prior._icp_target(seq[10]) is prior._icp_target(seq[10])
+
+
+def test_rgbd_prior_config_comes_from_the_run_config() -> None:
+    """``rgbd_prior.*`` in base.yaml are the dataclass defaults, and --set reaches the prior."""
+    from mslam.config import load_config
+    from mslam.priors.rgbd import RGBDPriorConfig
+    from mslam.system.sources import _make_prior
+
+    assert load_config().rgbd_prior() == RGBDPriorConfig()
+    cfg = load_config("rgbd", ["rgbd_prior.icp_points=3000", "rgbd_prior.features=orb"])
+    seq = make_sequence("forward", n_frames=3, width=80, height=60, seed=0)
+    prior = _make_prior("rgbd", seq, False, cfg)
+    assert prior.cfg.icp_points == 3000 and prior.cfg.features == "orb"
+    assert prior.cfg.n_features == RGBDPriorConfig().n_features
+
+
 def test_rgbd_prior_on_synthetic_frames() -> None:
     from mslam.priors.rgbd import RGBDPrior
 

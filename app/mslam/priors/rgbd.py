@@ -71,6 +71,9 @@ class RGBDPriorConfig:
             response instead, so the detector yields its quota whatever the contrast.
         ratio: Lowe ratio-test threshold.
         detect_min_width: frames narrower than this are upscaled for detection only.
+        detect_max_width: frames wider than this are downscaled to it for detection only
+            (0 = never): keypoints at 512 px cost 4x those at 256 px, and ICP on the depth
+            maps makes up the lost keypoint precision.
         ransac_px: RANSAC reprojection threshold in frame pixels.
         ransac_iters: RANSAC iterations.
         min_inliers: fewer inliers means "pose failed".
@@ -99,6 +102,7 @@ class RGBDPriorConfig:
     contrast_threshold: float = 0.01
     ratio: float = 0.8
     detect_min_width: int = 480
+    detect_max_width: int = 0
     ransac_px: float = 1.5
     ransac_iters: int = 500
     min_inliers: int = 15
@@ -220,9 +224,13 @@ class RGBDPrior:
     def _detect(self, frame: Frame):
         grey = cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2GRAY)
         H, W = grey.shape
-        f = max(1, int(np.ceil(self.cfg.detect_min_width / W)))
+        f = float(max(1, int(np.ceil(self.cfg.detect_min_width / W))))
         if f > 1:
-            grey = cv2.resize(grey, (W * f, H * f), interpolation=cv2.INTER_CUBIC)
+            grey = cv2.resize(grey, (W * int(f), H * int(f)), interpolation=cv2.INTER_CUBIC)
+        elif 0 < self.cfg.detect_max_width < W:
+            f = self.cfg.detect_max_width / W
+            size = (self.cfg.detect_max_width, max(1, round(H * f)))
+            grey = cv2.resize(grey, size, interpolation=cv2.INTER_AREA)
         if self.cfg.features == "sift":
             det = cv2.SIFT_create(
                 nfeatures=self.cfg.n_features, contrastThreshold=self.cfg.contrast_threshold
@@ -283,9 +291,19 @@ class RGBDPrior:
                 T_ij, n = pose.pnp(obj, img, Ki, flags, cfg)
             if n >= cfg.min_inliers:
                 with self._timed("icp"):
-                    T_icp = pose.refine_icp(frame_i.depth, frame_j.depth, Ki, Kj, T_ij, cfg)
+                    target = self._icp_target(frame_i)
+                    T_icp = pose.refine_icp(frame_i.depth, frame_j.depth, Ki, Kj, T_ij, cfg, target)
                     return pose.icp_agrees(T_icp, T_ij, obj, img, Ki, cfg), n
         return sim3.identity(), n
+
+    def _icp_target(self, frame_i: Frame):
+        """``rgbd_pose.icp_target`` of frame i, once per frame (a frame is i of its tracking
+        pair and of the graph edges it takes part in)."""
+        if self.cfg.icp_iters <= 0 or frame_i.depth is None:
+            return None
+        return self._cached(
+            "icp_target", frame_i, lambda f: pose.icp_target(f.depth, self.K_for(f))
+        )
 
     # -- protocol ----------------------------------------------------------------------------
     def _view(self, frame: Frame) -> tuple[FloatArray, FloatArray, np.ndarray]:

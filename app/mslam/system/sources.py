@@ -59,7 +59,7 @@ class Source:
     name: str
 
 
-def _make_prior(name: str, sequence: Any, use_calib: bool = False) -> Any:
+def _make_prior(name: str, sequence: Any, use_calib: bool = False, cfg: Any = None) -> Any:
     if name == "twoview":
         from mslam.priors.twoview import TwoViewPrior
 
@@ -74,7 +74,9 @@ def _make_prior(name: str, sequence: Any, use_calib: bool = False) -> Any:
     if name == "rgbd":
         from mslam.priors import rgbd
 
-        return rgbd.RGBDPrior(sequence)
+        return rgbd.RGBDPrior(
+            sequence, cfg.rgbd_prior() if cfg is not None else rgbd.RGBDPriorConfig()
+        )
     from mslam.priors import mast3r
 
     return mast3r.load_prior()  # checkpoint from $MSLAM_MAST3R_CHECKPOINT
@@ -134,7 +136,7 @@ def open_source(
         seq = ResizedSequence(seq, w, h, (W, H))
     if max_frames is not None and max_frames < len(seq):
         seq = TruncatedSequence(seq, max_frames)
-    p = _make_prior(prior_name, seq, use_calib)
+    p = _make_prior(prior_name, seq, use_calib, cfg)
     K = seq.K if use_calib else None
     if K is not None and hasattr(p, "network_intrinsics"):
         K = p.network_intrinsics(K, first)  # pointmaps come at the network resolution
