@@ -167,6 +167,43 @@ def test_ref_run_never_imports_taichi():
     assert res.returncode == 0, res.stderr[-2000:]
 
 
+def test_rgbd_resolution_presets_change_only_documented_keys():
+    """``rgbd_256.yaml`` / ``rgbd_512.yaml`` (docs/system.md "Resolution presets"): rgbd.yaml
+    plus their size, the dilation rounds, the tracking grid or keyframe threshold, and the
+    prior's detector and ICP settings; nothing else."""
+    from mslam.config import config_to_dict
+
+    def flat(cfg):
+        d = config_to_dict(cfg)
+        return {
+            f"{s}.{k}": v for s, sec in d.items() if isinstance(sec, dict) for k, v in sec.items()
+        }
+
+    rgbd = flat(load_config("rgbd"))
+    changed = {
+        "rgbd_256": {
+            "dataset.long_side": 256,
+            "matching.dilation_max": 2,
+            "tracking.pixels_per_frame": 12000,
+            "rgbd_prior.detect_min_width": 256,
+            "rgbd_prior.icp_points": 3000,
+            "rgbd_prior.icp_iters": 6,
+        },
+        "rgbd_512": {
+            "dataset.long_side": 512,
+            "matching.dilation_max": 2,
+            "tracking.match_frac_thresh": 0.333,
+            "rgbd_prior.detect_max_width": 384,
+            "rgbd_prior.icp_points": 3000,
+            "rgbd_prior.icp_iters": 6,
+        },
+    }
+    for name, expected in changed.items():
+        cfg = flat(load_config(name))
+        diff = {k: v for k, v in cfg.items() if rgbd.get(k) != v}
+        assert diff == pytest.approx(expected), name
+
+
 def test_rgbd_config_is_base_with_documented_changes():
     """``configs/rgbd.yaml`` (docs/system.md): base.yaml except fusion mode, keyframe threshold
     and the working resolution."""

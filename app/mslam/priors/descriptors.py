@@ -90,30 +90,43 @@ def patch_descriptors(
     win = sliding_window_view(pad, (w, w), axis=(0, 1))[..., :: cfg.step, :: cfg.step]
     P = _projection(cfg).astype(np.float32)
     n = P.shape[0]
-    D = np.empty((H, W, cfg.dim), np.float32)
-    # z (rows·W, 3p²) is built a few image rows at a time: the whole (H·W, 3p²) matrix would
-    # be 115 MB at 512x384, and filling it dominated the prior's time.
-    for y0 in range(0, H, _ROWS):
-        z = np.ascontiguousarray(win[y0 : y0 + _ROWS].transpose(0, 1, 3, 4, 2)).reshape(-1, n)
-        rows = len(z) // W
-        D[y0 : y0 + rows] = (z @ P).reshape(rows, W, cfg.dim)
     # The patch mean m and mean square: box sums over the same taps (of img and img²).
     mean, mean_sq = _tap_mean(pad, H, W, cfg), _tap_mean(pad * pad, H, W, cfg)
-    # P^T (z - m 1) = P^T z - m P^T 1, and the patch variance is mean(z²) - m².
     contrast = np.sqrt(np.maximum(mean_sq - mean * mean, 0.0))
-    D -= mean.astype(np.float32)[..., None] * P.sum(axis=0)  # float32 throughout: no temporaries
-    D *= (1.0 / (contrast + cfg.eps)).astype(np.float32)[..., None]  # of (H, W, F) float64
-    # A fixed tiny offset keeps the norm away from zero on perfectly flat patches.
-    D[..., 0] += np.float32(1e-6)
-    D *= (1.0 / np.sqrt(np.einsum("hwf,hwf->hw", D, D)))[..., None]
-    return D, contrast
+    # P^T (z - m 1) = P^T z - m P^T 1, and the patch variance is mean(z²) - m².
+    m32 = mean.astype(np.float32).reshape(-1, 1)
+    inv = (1.0 / (contrast + cfg.eps)).astype(np.float32).reshape(-1, 1)
+    P_sum = P.sum(axis=0)
+    D = np.empty((H * W, cfg.dim), np.float32)
+    # z (rows·W, 3p²) is built a few image rows at a time (the whole matrix would be 115 MB
+    # at 512x384), and each block is finished while it is in cache: centred, scaled, unit norm.
+    for y0 in range(0, H, _ROWS):
+        z = np.ascontiguousarray(win[y0 : y0 + _ROWS].transpose(0, 1, 3, 4, 2)).reshape(-1, n)
+        sl = slice(y0 * W, y0 * W + len(z))
+        Db = np.matmul(z, P, out=D[sl])
+        Db -= m32[sl] * P_sum
+        Db *= inv[sl]
+        Db[:, 0] += np.float32(1e-6)  # a fixed tiny offset keeps flat patches' norm above 0
+        Db *= 1.0 / np.sqrt(np.einsum("nf,nf->n", Db, Db))[:, None]
+    return D.reshape(H, W, cfg.dim), contrast
 
 
 def _tap_mean(pad: np.ndarray, H: int, W: int, cfg: DescriptorConfig) -> np.ndarray:
     """(H, W) mean over the 3·p² taps of each pixel's patch, from the padded (H+2r, W+2r, 3)
-    image: a separable sum of p shifted rows, then p shifted columns (float64 sums)."""
+    image, summed in float64: one p x p box filter for contiguous taps (``step`` 1), else a
+    separable sum of p shifted rows, then p shifted columns."""
     r, s = (cfg.patch // 2) * cfg.step, cfg.step
     a = pad.astype(np.float64).sum(axis=2)
+    if s == 1:
+        box = cv2.boxFilter(
+            a,
+            -1,
+            (cfg.patch, cfg.patch),
+            anchor=(0, 0),
+            normalize=False,
+            borderType=cv2.BORDER_CONSTANT,
+        )
+        return box[:H, :W] / (3 * cfg.patch * cfg.patch)
     rows = sum(a[k : k + H] for k in range(0, 2 * r + 1, s))
     cols = sum(rows[:, k : k + W] for k in range(0, 2 * r + 1, s))
     return cols / (3 * cfg.patch * cfg.patch)

@@ -47,7 +47,7 @@ from mslam.priors import rgbd_pose as pose
 from mslam.priors.base import PairPrediction
 from mslam.priors.descriptors import DescriptorConfig, patch_descriptors
 from mslam.priors.keypoints import ratio_matches
-from mslam_ref import sim3
+from mslam_ref import sim3, so3
 from mslam_ref.conventions import FloatArray
 from mslam_ref.pointmap import backproject, project, scale_intrinsics
 
@@ -347,7 +347,9 @@ class RGBDPrior:
         X_jj, C_jj, _ = self._view(frame_j)
         T_ij, n = self.relative_pose(frame_i, frame_j)
         self.last_inliers = n
-        X_ji = sim3.act(T_ij, X_jj)
+        # sim3.act for one pose and H·W points, as one (3, 3) product: s R X + t.
+        sR = T_ij[7] * so3.to_matrix(T_ij[3:7])
+        X_ji = (X_jj.reshape(-1, 3) @ sR.T + T_ij[:3]).reshape(X_jj.shape)
         D_ii, Q_ii = self._desc(frame_i)
         D_jj, Q_jj = self._desc(frame_j)
         if n < self.cfg.min_inliers:
