@@ -184,7 +184,8 @@ def test_rgbd_resolution_presets_change_only_documented_keys():
         "rgbd_256": {
             "dataset.long_side": 256,
             "matching.dilation_max": 2,
-            "tracking.pixels_per_frame": 12000,
+            "tracking.pixels_per_frame": 5000,
+            "local_opt.pixels_per_edge": 5000,
             "rgbd_prior.detect_min_width": 256,
             "rgbd_prior.icp_points": 3000,
             "rgbd_prior.icp_iters": 6,

@@ -123,6 +123,12 @@ class SlamSystem:
         self._first_status = "ok"
         self._last_tracked: tuple | None = None
         self._tracking_pair: tuple | None = None
+        from threadpoolctl import ThreadpoolController
+
+        # Each frame runs with single-threaded BLAS: on 2 cores OpenBLAS's own threads, which
+        # spin between calls, took the cores from Taichi's and OpenCV's (the descriptors'
+        # products took 12 or 24 ms per 256x192 frame from run to run; whole runs 10 % slower).
+        self._blas = ThreadpoolController()
 
     # -- bookkeeping -----------------------------------------------------------------------
     @contextmanager
@@ -204,6 +210,10 @@ class SlamSystem:
     # -- the main-loop body ----------------------------------------------------------------
     def process(self, frame: Frame) -> str:
         """Process one frame (docs/upstream.md §1.4); returns its status."""
+        with self._blas.limit(limits=1, user_api="blas"):
+            return self._process(frame)
+
+    def _process(self, frame: Frame) -> str:
         self.stats.frames += 1
         if self.mode == Mode.INIT and getattr(self.prior, "needs_parallax", False):
             return parallax.init_with_parallax(self, frame)
