@@ -9,7 +9,7 @@ their YAML sections on demand, with upstream's key names.
 Rules:
 
 * ``inherit: FILE`` is resolved recursively (relative to the including file; a bare ``base`` or
-  ``calib`` names the packaged files in ``mslam_ref/configs``); the child overrides the parent
+  ``calib`` names the packaged files in ``mslam/configs``); the child overrides the parent
   key by key, recursively for sections.
 * Floats such as ``1e-8`` parse as floats (upstream adds a YAML float resolver for this).
 * Every key must exist in the packaged ``base.yaml``: an unknown key (a typo) is a
@@ -292,7 +292,8 @@ def load_config(path: str | Path | None = None, overrides: Iterable[str] = ()) -
     Upstream: mast3r_slam/config.py::load_config (``inherit`` resolution, float resolver).
 
     Args:
-        path: a YAML file, or ``base`` / ``calib`` for the packaged files, or None for base.
+        path: a YAML file, or the name of a packaged file (``base``, ``calib``, ``rgbd``,
+            ``rgbd_256``, ``rgbd_512``, ...), or None for base.
         overrides: ``SECTION.KEY=VALUE`` strings applied after the files.
 
     Returns:

@@ -80,6 +80,27 @@ def test_run_is_deterministic():
     assert [(e.i, e.j) for e in system_a.graph.edges] == [(e.i, e.j) for e in system_b.graph.edges]
 
 
+def test_frames_run_with_one_blas_thread():
+    """``SlamSystem.process`` runs each frame with single-threaded BLAS and gives the caller's
+    setting back (two spinning OpenBLAS threads took the cores from Taichi and OpenCV)."""
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    from mslam.system.frontend import SlamSystem
+
+    def blas_threads() -> int:
+        return max(i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas")
+
+    cfg = load_config()
+    src = open_source(TINY, cfg)
+    seen, mono = [], src.prior.mono
+    src.prior.mono = lambda frame: (seen.append(blas_threads()), mono(frame))[1]
+    system = SlamSystem(src.prior, cfg, load_kernels("fast"), src.K)
+    with threadpool_limits(limits=2, user_api="blas"):
+        assert system.process(src.sequence[0]) == "keyframe"
+        after = blas_threads()
+    assert seen == [1] and after == 2
+
+
 def test_jump_relocalises_and_finishes():
     from mslam.system.outputs import evaluate_run
     from mslam_ref.synthetic import jump_indices

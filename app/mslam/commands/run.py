@@ -47,8 +47,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--config",
         metavar="FILE",
-        help="YAML config (inherit: base.yaml); 'base', 'calib', 'rgbd' and 'twoview' name the "
-        "packaged files (default: base, or the prior's own for rgbd and twoview)",
+        help="YAML config (inherit: base.yaml); 'base', 'calib', 'rgbd', 'rgbd_256', 'rgbd_512' "
+        "and 'twoview' name the packaged files (default: base, or the prior's own for rgbd and "
+        "twoview)",
     )
     p.add_argument(
         "--kernels",
