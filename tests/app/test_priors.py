@@ -200,6 +200,25 @@ def test_icp_target_normals_and_cache() -> None:
     assert prior._icp_target(seq[10]) is prior._icp_target(seq[10])
 
 
+def test_rgbd_prior_detects_on_a_downscaled_copy() -> None:
+    """``detect_max_width``: keypoints found on a smaller copy come back in frame pixels, so
+    the pose is as right as with full-size detection (fewer keypoints, fewer inliers)."""
+    from mslam.priors.rgbd import RGBDPrior, RGBDPriorConfig
+
+    seq = make_sequence("forward", n_frames=20, width=320, height=240, seed=0)
+    full = RGBDPrior(seq, replace(RGBDPriorConfig(), detect_min_width=0))
+    small = RGBDPrior(seq, replace(RGBDPriorConfig(), detect_min_width=0, detect_max_width=160))
+    uv_full = full._detect(seq[10])[0]
+    uv_small = small._detect(seq[10])[0]
+    assert uv_small[:, 0].max() > 200 and uv_small[:, 1].max() > 150  # frame pixels
+    assert len(uv_small) < len(uv_full)
+    truth = sim3.mul(sim3.inv(seq[10].T_WC), seq[13].T_WC)
+    for prior in (full, small):
+        T, n = prior.relative_pose(seq[10], seq[13])
+        rot, trans = _pose_error(T, truth)
+        assert n >= 15 and rot < 1.0 and trans < 0.03
+
+
 def test_rgbd_prior_config_comes_from_the_run_config() -> None:
     """``rgbd_prior.*`` in base.yaml are the dataclass defaults, and --set reaches the prior."""
     from mslam.config import load_config

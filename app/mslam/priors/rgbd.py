@@ -224,9 +224,9 @@ class RGBDPrior:
     def _detect(self, frame: Frame):
         grey = cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2GRAY)
         H, W = grey.shape
-        f = float(max(1, int(np.ceil(self.cfg.detect_min_width / W))))
+        f = max(1, int(np.ceil(self.cfg.detect_min_width / W)))  # detection image / frame
         if f > 1:
-            grey = cv2.resize(grey, (W * int(f), H * int(f)), interpolation=cv2.INTER_CUBIC)
+            grey = cv2.resize(grey, (W * f, H * f), interpolation=cv2.INTER_CUBIC)
         elif 0 < self.cfg.detect_max_width < W:
             f = self.cfg.detect_max_width / W
             size = (self.cfg.detect_max_width, max(1, round(H * f)))
