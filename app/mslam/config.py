@@ -122,7 +122,12 @@ class SlamConfig:
     def _typed(self, module: str, cls_name: str, section: str) -> Any:
         import importlib
 
-        cls = getattr(importlib.import_module(f"mslam_ref.{module}"), cls_name)
+        return self._section_as(
+            getattr(importlib.import_module(f"mslam_ref.{module}"), cls_name), section
+        )
+
+    def _section_as(self, cls: type, section: str) -> Any:
+        """``cls`` (a dataclass) from the section's keys it has; the rest keep its defaults."""
         keys = {f.name for f in dataclasses.fields(cls)}
         values = {k: v for k, v in dict(self.sections.get(section, {})).items() if k in keys}
         return cls(**values)
@@ -171,9 +176,7 @@ class SlamConfig:
         keep the dataclass defaults)."""
         from mslam.priors.rgbd import RGBDPriorConfig
 
-        keys = {f.name for f in dataclasses.fields(RGBDPriorConfig)}
-        values = {k: v for k, v in dict(self.sections.get("rgbd_prior", {})).items() if k in keys}
-        return RGBDPriorConfig(**values)
+        return self._section_as(RGBDPriorConfig, "rgbd_prior")
 
 
 def _read_yaml(path: Path) -> dict[str, Any]:
