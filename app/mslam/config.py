@@ -173,10 +173,16 @@ class SlamConfig:
 
     def rgbd_prior(self) -> Any:
         """``mslam.priors.rgbd.RGBDPriorConfig`` from ``rgbd_prior.*`` (keys not in the YAML
-        keep the dataclass defaults)."""
+        keep the dataclass defaults); ``rgbd_prior.descriptors`` is its ``desc.kind``."""
         from mslam.priors.rgbd import RGBDPriorConfig
 
-        return self._section_as(RGBDPriorConfig, "rgbd_prior")
+        cfg = self._section_as(RGBDPriorConfig, "rgbd_prior")
+        kind = dict(self.sections.get("rgbd_prior", {})).get("descriptors")
+        if kind is None:
+            return cfg
+        if kind not in ("dense", "separable"):
+            raise ValueError(f"descriptors: expected 'dense' or 'separable', got {kind!r}")
+        return dataclasses.replace(cfg, desc=dataclasses.replace(cfg.desc, kind=kind))
 
 
 def _read_yaml(path: Path) -> dict[str, Any]:
@@ -333,7 +339,7 @@ def load_config(path: str | Path | None = None, overrides: Iterable[str] = ()) -
 
     check_ranges(data, set_by, files[-1])  # every value against its stated range, one place
     ds = DatasetConfig(**data["dataset"])
-    return SlamConfig(
+    cfg = SlamConfig(
         use_calib=bool(data["use_calib"]),
         single_thread=bool(data["single_thread"]),
         dataset=ds,
@@ -341,6 +347,11 @@ def load_config(path: str | Path | None = None, overrides: Iterable[str] = ()) -
         sections={k: v for k, v in data.items() if isinstance(v, dict)},
         sources=tuple(files),
     )
+    try:  # the prior's words (sift/orb, dense/separable) now, whichever prior the run uses
+        cfg.rgbd_prior()
+    except ValueError as exc:
+        raise ValueError(f"rgbd_prior.{exc}") from None
+    return cfg
 
 
 def config_to_dict(cfg: SlamConfig) -> dict[str, Any]:

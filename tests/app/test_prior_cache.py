@@ -35,6 +35,33 @@ def test_entry_larger_than_the_bound_is_not_kept():
         ByteLRU(-1)
 
 
+def test_compute_alongside_stores_missing_entries_and_reraises():
+    import threading
+
+    cache = ByteLRU(max_bytes=10_000)
+    cache.get("a", lambda: np.zeros(1))
+    threads = []
+
+    def job(v):
+        threads.append(threading.current_thread().name)
+        return np.full(2, v)
+
+    join = cache.compute_alongside({"a": lambda: job(9.0), "b": lambda: job(1.0)})
+    join()
+    assert threads == ["cache-alongside"]  # only the missing entry, on the worker
+    assert cache.get("a", lambda: None)[0] == 0.0 and cache.get("b", lambda: None)[0] == 1.0
+    cache.compute_alongside({"a": lambda: job(5.0)})()  # nothing to do
+    assert len(threads) == 1
+
+    def fail():
+        raise RuntimeError("no keypoints")
+
+    join = cache.compute_alongside({"c": fail})
+    with pytest.raises(RuntimeError, match="no keypoints"):
+        join()
+    assert "c" not in cache
+
+
 def test_synthetic_prior_cache_stays_within_its_bytes():
     from mslam.datasets.synthetic import make_sequence
     from mslam.priors.descriptors import DescriptorConfig

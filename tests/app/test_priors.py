@@ -175,25 +175,33 @@ def test_fill_depth() -> None:
 
 
 def test_icp_target_normals_and_cache() -> None:
-    """ICP's normals (a hand-written cross product) are the unit ``du × dv`` of central
-    differences, zero-marked at holes and borders; the prior computes them once per frame."""
+    """ICP's normals (a hand-written cross product, only at the pixels asked for) are the unit
+    ``du × dv`` of central differences, marked invalid at holes and borders; the prior keeps
+    each frame's target (its points and their validity) once."""
     from mslam.priors.rgbd import RGBDPrior
-    from mslam.priors.rgbd_pose import icp_target
+    from mslam.priors.rgbd_pose import icp_target, normals_at
 
     rng = np.random.default_rng(3)
     z = 1.0 + rng.random((30, 40))
     z[5:9, 10:20] = 0.0
     K = np.array([[50.0, 0, 19.5], [0, 50.0, 14.5], [0, 0, 1]])
-    Y, N, ok = icp_target(z, K)
+    Y, has_normal = icp_target(z, K)
     X = backproject(z, K)
-    n = np.cross(X[1:-1, 2:] - X[1:-1, :-2], X[2:, 1:-1] - X[:-2, 1:-1])
+    assert np.array_equal(Y, X.reshape(-1, 3).T)
+    N, ok = normals_at(Y, has_normal, 40, np.arange(30 * 40))
     ok2 = ok.reshape(30, 40)
+    n = np.cross(X[1:-1, 2:] - X[1:-1, :-2], X[2:, 1:-1] - X[:-2, 1:-1])
     n = n[ok2[1:-1, 1:-1]] / np.linalg.norm(n[ok2[1:-1, 1:-1]], axis=-1, keepdims=True)
-    assert np.array_equal(Y, X.reshape(-1, 3)) and not ok2[0].any() and not ok2[:, -1].any()
+    assert not ok2[0].any() and not ok2[-1].any() and not ok2[:, 0].any() and not ok2[:, -1].any()
     # The 4 x 10 hole and its 4-neighbours are marked (no diagonals): 40 + 8 + 20 pixels.
     assert not ok2[5:9, 9:21].any() and not ok2[4:10, 10:20].any() and ok2[4, 9]
     assert ok2.sum() == 28 * 38 - 68
-    assert np.allclose(N.reshape(30, 40, 3)[1:-1, 1:-1][ok2[1:-1, 1:-1]], n)
+    assert np.allclose(N.T.reshape(30, 40, 3)[1:-1, 1:-1][ok2[1:-1, 1:-1]], n)
+    assert not N[:, ~ok].any()
+    # Any subset of pixels, in any order, gets the same normals.
+    some = rng.permutation(30 * 40)[:100]
+    N_some, ok_some = normals_at(Y, has_normal, 40, some)
+    assert np.array_equal(N_some, N[:, some]) and np.array_equal(ok_some, ok[some])
     seq = make_sequence("forward", n_frames=20, width=160, height=120, seed=0)
     prior = RGBDPrior(seq)
     assert prior.relative_pose(seq[10], seq[13])[1] >= 15
@@ -231,6 +239,14 @@ def test_rgbd_prior_config_comes_from_the_run_config() -> None:
     prior = _make_prior("rgbd", seq, False, cfg)
     assert prior.cfg.icp_points == 3000 and prior.cfg.features == "orb"
     assert prior.cfg.n_features == RGBDPriorConfig().n_features
+    assert prior.cfg.desc.kind == "dense"
+    cfg = load_config("rgbd", ["rgbd_prior.descriptors=separable"])
+    assert cfg.rgbd_prior().desc.kind == "separable"
+    # Checked when the config is loaded, whichever prior the run uses.
+    with pytest.raises(ValueError, match="rgbd_prior.descriptors: expected 'dense' or"):
+        load_config(None, ["rgbd_prior.descriptors=sparse"])
+    with pytest.raises(ValueError, match="rgbd_prior.features: expected 'sift' or"):
+        load_config(None, ["rgbd_prior.features=surf"])
 
 
 def test_rgbd_prior_on_synthetic_frames() -> None:

@@ -46,11 +46,12 @@ def _descriptors_one_matrix(rgb: np.ndarray, cfg: DescriptorConfig):
     return D.reshape(H, W, -1), contrast.reshape(H, W)
 
 
+@pytest.mark.parametrize("kind", ["dense", "separable"])
 @pytest.mark.parametrize(("H", "W", "step"), [(37, 29, 1), (16, 40, 2), (3, 5, 1), (50, 33, 3)])
-def test_blocked_patch_descriptors_equal_the_formula(H, W, step) -> None:
+def test_patch_descriptors_equal_the_formula(H, W, step, kind) -> None:
     rng = np.random.default_rng(H * W + step)
     rgb = rng.integers(0, 256, (H, W, 3), dtype=np.uint8)
-    cfg = DescriptorConfig(step=step)
+    cfg = DescriptorConfig(kind=kind, step=step)
     D, c = patch_descriptors(rgb, cfg)
     D0, c0 = _descriptors_one_matrix(rgb, cfg)
     # The descriptors are float32 (the contrast is summed in float64 from float32 pixels).

@@ -191,7 +191,7 @@ def test_ref_run_never_imports_taichi():
 def test_rgbd_resolution_presets_change_only_documented_keys():
     """``rgbd_256.yaml`` / ``rgbd_512.yaml`` (docs/system.md "Resolution presets"): rgbd.yaml
     plus their size, the dilation rounds, the tracking grid or keyframe threshold, and the
-    prior's detector and ICP settings; nothing else."""
+    prior's detector, ICP and descriptor settings; nothing else."""
     from mslam.config import config_to_dict
 
     def flat(cfg):
@@ -210,6 +210,7 @@ def test_rgbd_resolution_presets_change_only_documented_keys():
             "rgbd_prior.detect_min_width": 256,
             "rgbd_prior.icp_points": 3000,
             "rgbd_prior.icp_iters": 6,
+            "rgbd_prior.descriptors": "separable",
         },
         "rgbd_512": {
             "dataset.long_side": 512,
@@ -218,12 +219,16 @@ def test_rgbd_resolution_presets_change_only_documented_keys():
             "rgbd_prior.detect_max_width": 384,
             "rgbd_prior.icp_points": 3000,
             "rgbd_prior.icp_iters": 6,
+            "rgbd_prior.descriptors": "separable",
         },
     }
     for name, expected in changed.items():
         cfg = flat(load_config(name))
         diff = {k: v for k, v in cfg.items() if rgbd.get(k) != v}
+        assert diff.pop("rgbd_prior.descriptors") == expected.pop("rgbd_prior.descriptors")
         assert diff == pytest.approx(expected), name
+        assert load_config(name).rgbd_prior().desc.kind == "separable"
+    assert load_config("rgbd").rgbd_prior().desc.kind == "dense"
 
 
 def test_rgbd_config_is_base_with_documented_changes():

@@ -5,11 +5,16 @@ several keyframes. An entry's size is the sum of the ``nbytes`` of the NumPy arr
 (descending into tuples, lists and dicts), so the bound holds at every resolution: a count
 bound (the earlier 64 entries) grows with H·W·192 bytes per frame (943 MB at 320x240).
 
+:meth:`ByteLRU.compute_alongside` computes missing entries on a worker thread while the caller
+does other work (the RGB-D prior finds a frame's keypoints, in OpenCV, which releases the GIL,
+while it computes the frame's descriptors).
+
 Public names: DEFAULT_CACHE_BYTES, ByteLRU, nbytes.
 """
 
 from __future__ import annotations
 
+import threading
 from collections import OrderedDict
 from collections.abc import Callable, Hashable
 from typing import Any
@@ -53,6 +58,9 @@ class ByteLRU:
     def __len__(self) -> int:
         return len(self._items)
 
+    def __contains__(self, key: Hashable) -> bool:
+        return key in self._items
+
     def get(self, key: Hashable, compute: Callable[[], Any]) -> Any:
         """The value of ``key``, computing and storing it on a miss."""
         if key in self._items:
@@ -67,3 +75,31 @@ class ByteLRU:
                 _, (_, old) = self._items.popitem(last=False)
                 self.bytes -= old
         return value
+
+    def compute_alongside(self, jobs: dict[Hashable, Callable[[], Any]]) -> Callable[[], None]:
+        """Start computing the jobs whose keys are not cached, one after the other on a worker
+        thread; returns ``join``, which waits for them and stores them (re-raising the
+        worker's exception, if any, in the caller's thread). The cache itself is touched by
+        the caller's thread only."""
+        todo = {k: fn for k, fn in jobs.items() if k not in self._items}
+        if not todo:
+            return lambda: None
+        out: list[Any] = []
+
+        def work() -> None:
+            try:
+                out.extend(fn() for fn in todo.values())
+            except BaseException as exc:  # noqa: BLE001 - handed to the caller by join
+                out[:] = [exc]
+
+        worker = threading.Thread(target=work, name="cache-alongside", daemon=True)
+        worker.start()
+
+        def join() -> None:
+            worker.join()
+            if out and isinstance(out[0], BaseException):
+                raise out[0]
+            for key, value in zip(todo, out, strict=True):
+                self.get(key, lambda v=value: v)
+
+        return join

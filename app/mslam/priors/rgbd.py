@@ -40,16 +40,15 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
-from scipy import ndimage
 
 from mslam.datasets.frame import Frame
 from mslam.priors import rgbd_pose as pose
 from mslam.priors.base import PairPrediction
 from mslam.priors.descriptors import DescriptorConfig, patch_descriptors
-from mslam.priors.keypoints import ratio_matches
+from mslam.priors.keypoints import detect, ratio_matches
 from mslam_ref import sim3, so3
 from mslam_ref.conventions import FloatArray
-from mslam_ref.pointmap import backproject, project, scale_intrinsics
+from mslam_ref.pointmap import camera_rays, scale_intrinsics
 
 __all__ = ["FAILED_Q", "RGBDPrior", "RGBDPriorConfig", "fill_depth"]
 
@@ -132,7 +131,8 @@ class RGBDPriorConfig:
 
 
 def fill_depth(depth: FloatArray, default: float = 3.0) -> tuple[FloatArray, np.ndarray]:
-    """Fill invalid (<= 0) depth from the nearest valid pixel (Euclidean distance transform).
+    """Fill invalid (<= 0) depth from the nearest valid pixel (OpenCV's 5x5-mask Euclidean
+    distance transform, exact to a fraction of a pixel, with the label of the nearest pixel).
 
     Args:
         depth: (H, W) metres, 0 where invalid.
@@ -146,8 +146,11 @@ def fill_depth(depth: FloatArray, default: float = 3.0) -> tuple[FloatArray, np.
         return np.full(depth.shape, float(default)), valid
     if valid.all():
         return depth.copy(), valid
-    _, (iy, ix) = ndimage.distance_transform_edt(~valid, return_indices=True)
-    return depth[iy, ix], valid
+    # DIST_LABEL_PIXEL numbers the valid (zero) pixels 1, 2, ... in row-major order.
+    _, label = cv2.distanceTransformWithLabels(
+        (~valid).astype(np.uint8), cv2.DIST_L2, 5, labelType=cv2.DIST_LABEL_PIXEL
+    )
+    return depth[valid][label - 1], valid
 
 
 def _kinect_sigma(z: FloatArray) -> FloatArray:
@@ -195,6 +198,7 @@ class RGBDPrior:
         from mslam.priors.cache import ByteLRU
 
         self._cache = ByteLRU(cfg.desc.cache_bytes)  # bounded in bytes, not entries
+        self._rays_by_shape: dict[tuple[int, int], FloatArray] = {}
 
     @contextmanager
     def _timed(self, step: str):
@@ -204,10 +208,12 @@ class RGBDPrior:
         finally:
             self.seconds[step] += time.perf_counter() - t0
 
+    def _key(self, kind: str, frame: Frame) -> tuple:
+        return (kind, int(frame.index), frame.rgb.shape, hash(frame.rgb.tobytes()))
+
     def _cached(self, kind: str, frame: Frame, fn):
         """Per-frame results (features, descriptors) keyed by index and image content."""
-        key = (kind, int(frame.index), frame.rgb.shape, hash(frame.rgb.tobytes()))
-        return self._cache.get(key, lambda: fn(frame))
+        return self._cache.get(self._key(kind, frame), lambda: fn(frame))
 
     def K_for(self, frame: Frame) -> FloatArray:
         """Intrinsics at the frame's resolution."""
@@ -222,26 +228,7 @@ class RGBDPrior:
             return self._detect(frame)
 
     def _detect(self, frame: Frame):
-        grey = cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2GRAY)
-        H, W = grey.shape
-        f = max(1, int(np.ceil(self.cfg.detect_min_width / W)))  # detection image / frame
-        if f > 1:
-            grey = cv2.resize(grey, (W * f, H * f), interpolation=cv2.INTER_CUBIC)
-        elif 0 < self.cfg.detect_max_width < W:
-            f = self.cfg.detect_max_width / W
-            size = (self.cfg.detect_max_width, max(1, round(H * f)))
-            grey = cv2.resize(grey, size, interpolation=cv2.INTER_AREA)
-        if self.cfg.features == "sift":
-            det = cv2.SIFT_create(
-                nfeatures=self.cfg.n_features, contrastThreshold=self.cfg.contrast_threshold
-            )
-        else:
-            det = cv2.ORB_create(nfeatures=self.cfg.n_features)
-        kps, desc = det.detectAndCompute(grey, None)
-        if desc is None or len(kps) == 0:
-            return np.zeros((0, 2)), None
-        uv = (np.array([k.pt for k in kps], dtype=np.float64) + 0.5) / f - 0.5
-        return uv, desc
+        return detect(frame.rgb, self.cfg)
 
     def relative_pose(self, frame_i: Frame, frame_j: Frame) -> tuple[FloatArray, int]:
         """Estimate ``T_ij`` (camera j → camera i) from the images and j's depth.
@@ -301,9 +288,12 @@ class RGBDPrior:
         pair and of the graph edges it takes part in)."""
         if self.cfg.icp_iters <= 0 or frame_i.depth is None:
             return None
-        return self._cached(
-            "icp_target", frame_i, lambda f: pose.icp_target(f.depth, self.K_for(f))
-        )
+
+        def target(f: Frame):
+            # The filled depth's points: ICP reads only those of valid pixels.
+            return pose.icp_target(f.depth, self.K_for(f), self._view(f)[0])
+
+        return self._cached("icp_target", frame_i, target)
 
     # -- protocol ----------------------------------------------------------------------------
     def _view(self, frame: Frame) -> tuple[FloatArray, FloatArray, np.ndarray]:
@@ -317,7 +307,7 @@ class RGBDPrior:
         if frame.depth is None:
             raise ValueError(f"frame {frame.index}: the RGB-D prior needs a depth image")
         z, valid = fill_depth(frame.depth, self.cfg.fill_depth)
-        X = backproject(z, self.K_for(frame))
+        X = z[..., None] * self._rays(frame)  # pointmap.backproject with the rays kept
         C = np.where(
             valid, 1.0 + self.cfg.conf_max * np.exp(-_kinect_sigma(z) / self.cfg.conf_sigma), 1.0
         )
@@ -325,13 +315,25 @@ class RGBDPrior:
             a.setflags(write=False)  # cached and shared by every pair of this frame
         return X, C, valid
 
+    def _rays(self, frame: Frame) -> FloatArray:
+        """``pointmap.camera_rays`` at the frame's size, computed once per size."""
+        if frame.shape not in self._rays_by_shape:
+            rays = camera_rays(self.K_for(frame), *frame.shape)
+            rays.setflags(write=False)
+            self._rays_by_shape[frame.shape] = rays
+        return self._rays_by_shape[frame.shape]
+
     def _desc(self, frame: Frame) -> tuple[FloatArray, FloatArray]:
-        D, contrast = self._cached("desc", frame, self._patch_descriptors)
-        return D, 1.0 + self.cfg.q_gain * np.tanh(contrast / self.cfg.q_contrast)
+        """``D`` (H, W, F) and ``Q = 1 + q_gain tanh(contrast / q_contrast)`` (H, W)."""
+        return self._cached("desc", frame, self._patch_descriptors)
 
     def _patch_descriptors(self, frame: Frame) -> tuple[FloatArray, FloatArray]:
         with self._timed("descriptors"):
-            return patch_descriptors(frame.rgb, self.cfg.desc)
+            D, contrast = patch_descriptors(frame.rgb, self.cfg.desc)
+            Q = 1.0 + self.cfg.q_gain * np.tanh(contrast / self.cfg.q_contrast)
+            for a in (D, Q):
+                a.setflags(write=False)  # cached and shared by every pair of this frame
+            return D, Q
 
     def mono(self, frame: Frame) -> tuple[FloatArray, FloatArray]:
         """``X_ii (H, W, 3)`` from the (filled) depth and ``C_ii (H, W)``."""
@@ -343,15 +345,17 @@ class RGBDPrior:
 
         Sets ``self.last_inliers`` to the PnP inlier count of this pair.
         """
+        join = self._features_alongside(frame_i, frame_j)
         X_ii, C_ii, valid_i = self._view(frame_i)
         X_jj, C_jj, _ = self._view(frame_j)
+        D_ii, Q_ii = self._desc(frame_i)
+        D_jj, Q_jj = self._desc(frame_j)
+        join()
         T_ij, n = self.relative_pose(frame_i, frame_j)
         self.last_inliers = n
         # sim3.act for one pose and H·W points, as one (3, 3) product: s R X + t.
         sR = T_ij[7] * so3.to_matrix(T_ij[3:7])
         X_ji = (X_jj.reshape(-1, 3) @ sR.T + T_ij[:3]).reshape(X_jj.shape)
-        D_ii, Q_ii = self._desc(frame_i)
-        D_jj, Q_jj = self._desc(frame_j)
         if n < self.cfg.min_inliers:
             # No pose: X_ji is j's pointmap left in camera j, so every correspondence the
             # matcher would find is a guess. C_ji = 1 and a descriptor confidence so low that
@@ -364,16 +368,30 @@ class RGBDPrior:
                 C_ji = self._consistency(X_ji, C_jj, frame_i, valid_i)
         return PairPrediction(X_ii, C_ii, D_ii, Q_ii, X_ji, C_ji, D_jj, Q_jj)
 
+    def _features_alongside(self, *frames: Frame):
+        """Start the frames' keypoints (when not cached) on a worker thread; returns ``join``.
+        SIFT runs while the caller computes depth views and descriptors: 10 ms less a frame
+        at 512x384 on 2 cores (docs/system.md)."""
+        return self._cache.compute_alongside(
+            {self._key("features", f): (lambda f=f: self._features(f)) for f in frames}
+        )
+
     def _consistency(self, X_ji, C_jj, frame_i: Frame, valid_i: np.ndarray) -> FloatArray:
+        """``C_ji``: ``C_jj`` pulled towards 1 where j's point disagrees with i's depth at the
+        pixel it projects to, or falls outside image i (``pointmap.project``, written out
+        for the (H, W) maps: 5 ms at 512x384 through the checked general function)."""
         cfg = self.cfg
-        uv, z = project(X_ji, self.K_for(frame_i))
+        K = self.K_for(frame_i)
         H, W = frame_i.shape
-        u, v = np.round(uv[..., 0]), np.round(uv[..., 1])
-        inside = (z > 1e-6) & (u >= 0) & (u <= W - 1) & (v >= 0) & (v <= H - 1)
-        ui = np.clip(u, 0, W - 1).astype(np.int64)
-        vi = np.clip(v, 0, H - 1).astype(np.int64)
-        zi = frame_i.depth[vi, ui]
-        checked = inside & valid_i[vi, ui]
-        bad = checked & (np.abs(zi - z) > cfg.consistency_tol * np.maximum(zi, 1e-6))
+        z = X_ji[..., 2]
+        front = z > 1e-6
+        zc = np.where(front, z, 1.0)  # behind camera i: outside, whatever u and v
+        u = np.round(K[0, 0] * X_ji[..., 0] / zc + K[0, 2])
+        v = np.round(K[1, 1] * X_ji[..., 1] / zc + K[1, 2])
+        inside = front & (u >= 0) & (u <= W - 1) & (v >= 0) & (v <= H - 1)
+        at = np.where(inside, v * W + u, 0).astype(np.intp)  # i's pixel, row-major
+        zi = frame_i.depth.take(at)
+        bad = inside & valid_i.take(at)
+        bad &= np.abs(zi - z) > cfg.consistency_tol * np.maximum(zi, 1e-6)
         C = np.where(bad, 1.0 + (C_jj - 1.0) * cfg.inconsistent_factor, C_jj)
         return np.where(inside, C, 1.0 + (C - 1.0) * cfg.covis_factor)
