@@ -335,7 +335,7 @@ def _match_args(
         D2p,
         idx0,
         int(idx_init is not None),
-        np.empty((B, H, W, 9), dtype=X1.dtype),  # RG scratch
+        host.ray_scratch(B, H, W),  # RG scratch
         np.empty((B, N), dtype=np.int64),  # idx (output)
         np.empty((B, N), dtype=np.uint8),  # valid (output)
         int(cfg.max_iter),

@@ -243,9 +243,9 @@ def test_rgbd_prior_config_comes_from_the_run_config() -> None:
     cfg = load_config("rgbd", ["rgbd_prior.descriptors=separable"])
     assert cfg.rgbd_prior().desc.kind == "separable"
     # Checked when the config is loaded, whichever prior the run uses.
-    with pytest.raises(ValueError, match="rgbd_prior.descriptors: expected 'dense' or"):
+    with pytest.raises(ValueError, match=r"rgbd_prior\.descriptors: expected 'dense' or"):
         load_config(None, ["rgbd_prior.descriptors=sparse"])
-    with pytest.raises(ValueError, match="rgbd_prior.features: expected 'sift' or"):
+    with pytest.raises(ValueError, match=r"rgbd_prior\.features: expected 'sift' or"):
         load_config(None, ["rgbd_prior.features=surf"])
 
 

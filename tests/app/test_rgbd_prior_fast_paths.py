@@ -2,7 +2,8 @@
 
 * separable patch descriptors: a block-structured, rank-1-per-filter, zero-sum projection,
   still unit, smooth, discriminative and invariant to brightness and contrast;
-* ``C_ji``'s consistency check written out equals the one through ``pointmap.project``;
+* ``C_ji``'s consistency check (``rgbd_pose.consistency``) written out equals the one through
+  ``pointmap.project``;
 * depth filling takes (nearly) the nearest valid pixel;
 * keypoints found on a worker thread give the same predictions as found in line.
 """
@@ -17,6 +18,7 @@ from mslam.datasets.synthetic import make_sequence
 from mslam.priors import DESC_DIM
 from mslam.priors.descriptors import DescriptorConfig, _projection, patch_descriptors
 from mslam.priors.rgbd import RGBDPrior, fill_depth
+from mslam.priors.rgbd_pose import consistency
 from mslam_ref.pointmap import project
 
 SEP = DescriptorConfig(kind="separable")
@@ -47,7 +49,7 @@ def test_separable_projection_structure() -> None:
 def test_separable_descriptors_discriminate_and_ignore_brightness() -> None:
     seq = make_sequence("forward", n_frames=2, width=96, height=72, seed=1)
     rgb = seq[0].rgb
-    D, contrast = patch_descriptors(rgb, SEP)
+    D, _ = patch_descriptors(rgb, SEP)
     assert D.shape == (72, 96, DESC_DIM) and D.dtype == np.float32
     np.testing.assert_allclose(np.linalg.norm(D, axis=-1), 1.0, atol=1e-6)
     near = (D[:, 1:] * D[:, :-1]).sum(-1).mean()
@@ -84,12 +86,12 @@ def test_consistency_equals_the_projection_formula() -> None:
     seq = make_sequence("forward", n_frames=20, width=80, height=60, seed=2)
     prior = RGBDPrior(seq)
     fi, fj = seq[5], seq[12]
-    X_ii, C_ii, valid_i = prior._view(fi)
+    _, _, valid_i = prior._view(fi)
     X_jj, C_jj, _ = prior._view(fj)
     X = X_jj + np.array([0.3, -0.1, 0.05])  # some points leave image i
     X[:5, :5, 2] = -1.0  # behind camera i
     X[10, 10, 2] = 0.0
-    got = prior._consistency(X, C_jj, fi, valid_i)
+    got = consistency(X, C_jj, fi.depth, valid_i, prior.K_for(fi), prior.cfg)
     want = _consistency_through_project(prior, X, C_jj, fi, valid_i)
     np.testing.assert_array_equal(got, want)
     assert (got < C_jj).any() and (got == C_jj).any()  # both cases occur
@@ -104,7 +106,7 @@ def test_fill_depth_takes_a_nearest_valid_pixel() -> None:
     assert np.array_equal(valid, depth > 0) and np.array_equal(filled[valid], depth[valid])
     exact = ndimage.distance_transform_edt(~valid)
     where = {v: (y, x) for (y, x), v in np.ndenumerate(depth) if v > 0}
-    for (y, x) in zip(*np.nonzero(~valid)):
+    for y, x in zip(*np.nonzero(~valid)):
         sy, sx = where[filled[y, x]]
         # OpenCV's 5x5-mask distance is within 2 % of the Euclidean one.
         assert np.hypot(sy - y, sx - x) <= 1.02 * exact[y, x] + 1e-9

@@ -199,6 +199,23 @@ def test_match_zero_and_nonfinite_points(fast: str) -> None:
         _assert_share(v_f, v_r, fast, "valid with bad points")
 
 
+def test_match_rejects_nonfinite_descriptors(fast: str) -> None:
+    """Descriptors are checked by max and min (NaN propagates, ±inf shows), not by a sum
+    that could overflow: huge finite values pass, any NaN or inf is named."""
+    from mslam_fast import _matching_host as host
+    from mslam_fast import matching as fm
+
+    assert host.all_finite(np.full((4, 24), 3e38, np.float32))  # its float32 sum overflows
+    assert host.all_finite(np.zeros((0, 24), np.float32))
+    X11, X21, D11, D21 = analytic_pair(32, 24)
+    for bad in (np.nan, np.inf, -np.inf):
+        D = D21.copy()
+        D[7, 3, 5] = bad
+        assert not host.all_finite(D)
+        with pytest.raises(ValueError, match="D21: contains non-finite"):
+            fm.match(X11, X21, D11, D)
+
+
 @pytest.mark.parametrize("stride", [2, 4])
 def test_match_on_a_pixel_grid_equals_matching_everything(fast: str, stride: int) -> None:
     """Zeroing the points outside a grid matches the grid only: on the grid both kernel sets

@@ -89,7 +89,7 @@ class ByteLRU:
         def work() -> None:
             try:
                 out.extend(fn() for fn in todo.values())
-            except BaseException as exc:  # noqa: BLE001 - handed to the caller by join
+            except BaseException as exc:  # handed to the caller by join
                 out[:] = [exc]
 
         worker = threading.Thread(target=work, name="cache-alongside", daemon=True)

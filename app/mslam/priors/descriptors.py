@@ -19,7 +19,7 @@ Two kinds of ``P`` (``DescriptorConfig.kind``):
   so feature ``3k + c`` is filter k on channel c:
   ``P[(dy, dx, c), 3k + c'] = δ(c, c') g_k[dy] h_k[dx]``. Each filter is two 1-D passes
   (``cv2.sepFilter2D``), 2p instead of 3p² multiply-adds per pixel and feature: a 512x384
-  frame takes about 12 ms instead of 54 (docs/system.md). The descriptors are still unit,
+  frame takes about 18 ms instead of 54 (docs/system.md). The descriptors are still unit,
   smooth and discriminative; the matches they refine are measured in docs/system.md.
 
 Public names, in reading order:

@@ -6,7 +6,10 @@ correspondences), refines the result with :func:`refine_icp` (j's depth points o
 depth map) and keeps the refinement only if :func:`icp_agrees`. ``cfg`` is the prior's
 ``RGBDPriorConfig``.
 
-Public names, in reading order: pnp, normals_at, icp_target, icp_sample, refine_icp, icp_agrees.
+:func:`consistency` then checks the posed pointmap of j against i's depth for ``C_ji``.
+
+Public names, in reading order: pnp, normals_at, icp_target, icp_sample, refine_icp, icp_agrees,
+consistency.
 """
 
 from __future__ import annotations
@@ -20,7 +23,15 @@ from mslam_ref import sim3, so3
 from mslam_ref.conventions import FloatArray
 from mslam_ref.pointmap import backproject, strided_pixels
 
-__all__ = ["icp_agrees", "icp_sample", "icp_target", "normals_at", "pnp", "refine_icp"]
+__all__ = [
+    "consistency",
+    "icp_agrees",
+    "icp_sample",
+    "icp_target",
+    "normals_at",
+    "pnp",
+    "refine_icp",
+]
 
 
 def pnp(
@@ -235,3 +246,38 @@ def icp_agrees(
 
     n_pnp = explained(T_pnp)
     return T_icp if explained(T_icp) >= cfg.icp_min_agree * n_pnp else T_pnp
+
+
+def consistency(
+    X_ji: FloatArray,
+    C_jj: FloatArray,
+    depth_i: FloatArray,
+    valid_i: np.ndarray,
+    K_i: FloatArray,
+    cfg: Any,
+) -> FloatArray:
+    """``C_ji``: ``C_jj`` pulled towards 1 where j's point disagrees with i's depth at the
+    pixel it projects to (by more than ``consistency_tol`` relative), by
+    ``inconsistent_factor``, or falls outside image i, by ``covis_factor``.
+
+    ``pointmap.project`` written out for the (H, W) maps (5 ms at 512x384 through the checked
+    general function, 3 ms here).
+
+    Args:
+        X_ji: (H, W, 3) j's points in camera i. C_jj: (H, W) their confidences.
+        depth_i: (H, W) i's depth (0 = invalid); valid_i: (H, W) bool, depth_i > 0.
+        K_i: (3, 3) intrinsics of i.
+    """
+    H, W = depth_i.shape
+    z = X_ji[..., 2]
+    front = z > 1e-6
+    zc = np.where(front, z, 1.0)  # behind camera i: outside, whatever u and v
+    u = np.round(K_i[0, 0] * X_ji[..., 0] / zc + K_i[0, 2])
+    v = np.round(K_i[1, 1] * X_ji[..., 1] / zc + K_i[1, 2])
+    inside = front & (u >= 0) & (u <= W - 1) & (v >= 0) & (v <= H - 1)
+    at = np.where(inside, v * W + u, 0).astype(np.intp)  # i's pixel, row-major
+    zi = depth_i.take(at)
+    bad = inside & valid_i.take(at)
+    bad &= np.abs(zi - z) > cfg.consistency_tol * np.maximum(zi, 1e-6)
+    C = np.where(bad, 1.0 + (C_jj - 1.0) * cfg.inconsistent_factor, C_jj)
+    return np.where(inside, C, 1.0 + (C - 1.0) * cfg.covis_factor)
