@@ -41,25 +41,33 @@ def test_compute_alongside_stores_missing_entries_and_reraises():
     cache = ByteLRU(max_bytes=10_000)
     cache.get("a", lambda: np.zeros(1))
     threads = []
+    b_may_finish = threading.Event()
 
-    def job(v):
+    def job(v, wait=None):
         threads.append(threading.current_thread().name)
+        if wait is not None:
+            assert wait.wait(5.0)
         return np.full(2, v)
 
-    join = cache.compute_alongside({"a": lambda: job(9.0), "b": lambda: job(1.0)})
+    join = cache.compute_alongside(
+        {"a": lambda: job(9.0), "c": lambda: job(1.0), "b": lambda: job(2.0, b_may_finish)}
+    )
+    join("c")  # the first job only: returns while "b" still waits
+    assert "c" in cache and "b" not in cache
+    b_may_finish.set()
     join()
-    assert threads == ["cache-alongside"]  # only the missing entry, on the worker
-    assert cache.get("a", lambda: None)[0] == 0.0 and cache.get("b", lambda: None)[0] == 1.0
+    assert threads == ["cache-alongside"] * 2  # only the missing entries, on the worker
+    assert cache.get("a", lambda: None)[0] == 0.0 and cache.get("b", lambda: None)[0] == 2.0
     cache.compute_alongside({"a": lambda: job(5.0)})()  # nothing to do
-    assert len(threads) == 1
+    assert len(threads) == 2
 
     def fail():
         raise RuntimeError("no keypoints")
 
-    join = cache.compute_alongside({"c": fail})
+    join = cache.compute_alongside({"d": fail, "e": lambda: job(3.0)})
     with pytest.raises(RuntimeError, match="no keypoints"):
         join()
-    assert "c" not in cache
+    assert "d" not in cache and "e" not in cache and len(threads) == 2  # nothing after a failure
 
 
 def test_synthetic_prior_cache_stays_within_its_bytes():

@@ -5,7 +5,7 @@
 * ``C_ji``'s consistency check (``rgbd_pose.consistency``) written out equals the one through
   ``pointmap.project``;
 * depth filling takes (nearly) the nearest valid pixel;
-* keypoints found on a worker thread give the same predictions as found in line.
+* keypoints and descriptors found on a worker thread give the same predictions as in line.
 """
 
 from __future__ import annotations
@@ -112,7 +112,7 @@ def test_fill_depth_takes_a_nearest_valid_pixel() -> None:
         assert np.hypot(sy - y, sx - x) <= 1.02 * exact[y, x] + 1e-9
 
 
-def test_pair_is_the_same_with_keypoints_found_alongside(monkeypatch) -> None:
+def test_pair_is_the_same_with_work_done_alongside(monkeypatch) -> None:
     seq = make_sequence("forward", n_frames=20, width=160, height=120, seed=0)
     threaded = RGBDPrior(seq)
     inline = RGBDPrior(seq)
@@ -120,7 +120,7 @@ def test_pair_is_the_same_with_keypoints_found_alongside(monkeypatch) -> None:
     def in_line(jobs):  # compute_alongside, run in the caller's thread at once
         for key, fn in jobs.items():
             inline._cache.get(key, fn)
-        return lambda: None
+        return lambda *keys: None
 
     monkeypatch.setattr(inline._cache, "compute_alongside", in_line)
     for i, j in ((10, 13), (13, 16), (10, 16)):

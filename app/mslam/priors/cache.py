@@ -76,30 +76,40 @@ class ByteLRU:
                 self.bytes -= old
         return value
 
-    def compute_alongside(self, jobs: dict[Hashable, Callable[[], Any]]) -> Callable[[], None]:
-        """Start computing the jobs whose keys are not cached, one after the other on a worker
-        thread; returns ``join``, which waits for them and stores them (re-raising the
-        worker's exception, if any, in the caller's thread). The cache itself is touched by
-        the caller's thread only."""
+    def compute_alongside(self, jobs: dict[Hashable, Callable[[], Any]]) -> Callable[..., None]:
+        """Start computing the jobs whose keys are not cached, in order, on a worker thread.
+
+        Returns ``join(*keys)``: waits until those jobs (all of them when no key is given) are
+        done and stores their values, re-raising the worker's exception, if any, in the
+        caller's thread. The cache itself is touched by the caller's thread only.
+        """
         todo = {k: fn for k, fn in jobs.items() if k not in self._items}
-        if not todo:
-            return lambda: None
-        out: list[Any] = []
+        done = {k: threading.Event() for k in todo}
+        out: dict[Hashable, Any] = {}
+        failed: list[BaseException] = []
 
         def work() -> None:
-            try:
-                out.extend(fn() for fn in todo.values())
-            except BaseException as exc:  # handed to the caller by join
-                out[:] = [exc]
+            for key, fn in todo.items():
+                try:
+                    if not failed:
+                        out[key] = fn()
+                except BaseException as exc:  # handed to the caller by join
+                    failed.append(exc)
+                finally:
+                    done[key].set()
 
-        worker = threading.Thread(target=work, name="cache-alongside", daemon=True)
-        worker.start()
+        if todo:
+            threading.Thread(target=work, name="cache-alongside", daemon=True).start()
 
-        def join() -> None:
-            worker.join()
-            if out and isinstance(out[0], BaseException):
-                raise out[0]
-            for key, value in zip(todo, out, strict=True):
-                self.get(key, lambda v=value: v)
+        def join(*keys: Hashable) -> None:
+            for key in keys or tuple(todo):
+                if key in done:
+                    done[key].wait()
+            if failed:
+                raise failed[0]
+            for key in keys or tuple(todo):
+                if key in out:
+                    value = out.pop(key)
+                    self.get(key, lambda v=value: v)
 
         return join

@@ -358,17 +358,31 @@ class RGBDPrior:
             self._hashes = None
 
     def _pair(self, frame_i: Frame, frame_j: Frame) -> PairPrediction:
-        join = self._features_alongside(frame_i, frame_j)
+        # Keypoints, then descriptors, of the frames that have none cached, on a worker thread
+        # (OpenCV releases the GIL): the single-threaded steps of the pose (ratio test, PnP,
+        # ICP) run beside the descriptors instead of after them (docs/system.md).
+        frames = (frame_i, frame_j)
+        keys = [self._key("features", f) for f in frames]
+        jobs = {k: (lambda f=f: self._features(f)) for k, f in zip(keys, frames, strict=True)}
+        for f in frames:
+            jobs[self._key("desc", f)] = lambda f=f: self._patch_descriptors(f)
+        join = self._cache.compute_alongside(jobs)
         X_ii, C_ii, valid_i = self._view(frame_i)
         X_jj, C_jj, _ = self._view(frame_j)
-        D_ii, Q_ii = self._desc(frame_i)
-        D_jj, Q_jj = self._desc(frame_j)
-        join()
+        join(*keys)
         T_ij, n = self.relative_pose(frame_i, frame_j)
         self.last_inliers = n
         # sim3.act for one pose and H·W points, as one (3, 3) product: s R X + t.
         sR = T_ij[7] * so3.to_matrix(T_ij[3:7])
         X_ji = (X_jj.reshape(-1, 3) @ sR.T + T_ij[:3]).reshape(X_jj.shape)
+        if n >= self.cfg.min_inliers:
+            with self._timed("consistency"):
+                C_ji = pose.consistency(
+                    X_ji, C_jj, frame_i.depth, valid_i, self.K_for(frame_i), self.cfg
+                )
+        join()
+        D_ii, Q_ii = self._desc(frame_i)
+        D_jj, Q_jj = self._desc(frame_j)
         if n < self.cfg.min_inliers:
             # No pose: X_ji is j's pointmap left in camera j, so every correspondence the
             # matcher would find is a guess. C_ji = 1 and a descriptor confidence so low that
@@ -376,17 +390,4 @@ class RGBDPrior:
             # tracking, edges and relocalisation reject the pair instead of building on it.
             C_ji = np.ones_like(C_jj)
             Q_jj = np.full_like(Q_jj, FAILED_Q)
-        else:
-            with self._timed("consistency"):
-                C_ji = pose.consistency(
-                    X_ji, C_jj, frame_i.depth, valid_i, self.K_for(frame_i), self.cfg
-                )
         return PairPrediction(X_ii, C_ii, D_ii, Q_ii, X_ji, C_ji, D_jj, Q_jj)
-
-    def _features_alongside(self, *frames: Frame):
-        """Start the frames' keypoints (when not cached) on a worker thread; returns ``join``.
-        SIFT runs while the caller computes depth views and descriptors: 10 ms less a frame
-        at 512x384 on 2 cores (docs/system.md)."""
-        return self._cache.compute_alongside(
-            {self._key("features", f): (lambda f=f: self._features(f)) for f in frames}
-        )
