@@ -1,10 +1,12 @@
 """Bundle adjustment on Ladybug-49 (BAL): reference, fast, scipy least_squares and pyceres.
 
     python benchmarks/bench_ba.py [--repeat N] [--iterations 50] [--no-scipy] [--no-pyceres]
+                                  [--arch cpu|cuda] [--data FILE]
 
 Every solver gets the same iteration cap and the same stopping rule where it has one (Ceres'
 ``function_tolerance`` 1e-6). Times are best-of-N wall times of the solve only (file loading and
-the Taichi compilation excluded by a warm-up). Writes the ``ba`` section of RESULTS.md.
+the Taichi compilation excluded by a warm-up). Writes the ``ba`` section of RESULTS.md
+(``ba-cuda`` with ``--arch cuda``: the fast kernels on a GPU, the others as always).
 
 * ref / fast: ``mslam_ref.ba.lm.optimize`` with ``LMConfig(jacobi_scaling=True,
   function_tolerance=1e-6)`` and the NumPy or Taichi kernel set.
@@ -157,9 +159,14 @@ def main() -> None:
     ap.add_argument("--iterations", type=int, default=50)
     ap.add_argument("--no-scipy", action="store_true")
     ap.add_argument("--no-pyceres", action="store_true")
+    ap.add_argument("--arch", choices=["cpu", "cuda"], default="cpu", help="Taichi backend")
+    ap.add_argument("--data", default=str(DATA), help="the BAL file (default: shared data)")
     args = ap.parse_args()
-    problem = io.read_bal(DATA)
+    problem = io.read_bal(args.data)
+    import mslam_fast
     from mslam.kernels import load_kernels
+
+    mslam_fast.init(args.arch, "f64")
 
     fast_ba, ref_ba = load_kernels("fast").ba, load_kernels("ref").ba
 
@@ -167,7 +174,13 @@ def main() -> None:
     load0 = os.getloadavg()[0]
     t, cost, it, prof = run_mslam(problem, fast_ba, args.iterations, args.repeat)
     rows.append(
-        ["mslam fast (Taichi CPU)", f"{t:.3f}", f"{cost:.2f}", it, f"best of {args.repeat}"]
+        [
+            f"mslam fast (Taichi {args.arch.upper()})",
+            f"{t:.3f}",
+            f"{cost:.2f}",
+            it,
+            f"best of {args.repeat}",
+        ]
     )
     fast_prof = prof
     t, cost, it, _ = run_mslam(problem, ref_ba, args.iterations, max(1, args.repeat // 2))
@@ -201,7 +214,10 @@ def main() -> None:
         "Fast per-stage profile (ms, last run):\n\n" + table(["stage", "ms"], prof_rows)
     )
     print(body)
-    write_section("ba", "Bundle adjustment (Ladybug-49)", body)
+    if args.arch == "cpu":
+        write_section("ba", "Bundle adjustment (Ladybug-49)", body)
+    else:
+        write_section("ba-cuda", "Bundle adjustment (Ladybug-49), fast kernels on CUDA", body)
 
 
 if __name__ == "__main__":

@@ -4,7 +4,11 @@ Reference (NumPy, float64) against the Taichi kernels on the CPU (f64 and f32), 
 (ray + distance) and calibrated (pixel + log-depth). Best of N wall times after a warm-up
 call (the first call compiles the kernel). Writes the ``tracking`` section of RESULTS.md.
 
-    python benchmarks/bench_tracking.py [--repeat 10]
+    python benchmarks/bench_tracking.py [--repeat 10] [--arch cpu|cuda]
+
+``--arch cuda`` (a GPU) writes the section ``tracking-cuda`` instead; its times include the
+copies of the NumPy inputs and outputs between host and GPU, as a caller of these functions
+pays them.
 """
 
 from __future__ import annotations
@@ -41,27 +45,27 @@ def problem():
     X = np.stack([X_k, X_f.reshape(H, W, 3)])
     C = np.full((2, H, W), 2.0)
     blk = (np.array([1]), np.array([0]), np.arange(H * W)[None], valid[None], Q[None])
-    return T, X_f, X_k, Q, valid, T_WC, X, C, blk
+    graphs = (ref_backend.PoseGraph(X, C, *blk), ref_backend.PoseGraph(X, C, *blk, K_cam=K))
+    return T, X_f, X_k, Q, valid, T_WC, graphs
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=10)
+    ap.add_argument("--arch", choices=["cpu", "cuda"], default="cpu", help="Taichi backend")
     args = ap.parse_args()
     import mslam_fast
     from mslam_fast import backend as fast_backend
     from mslam_fast import tracking as fast_tracking
 
-    T, X_f, X_k, Q, valid, T_WC, X, C, blk = problem()
+    T, X_f, X_k, Q, valid, T_WC, (graph, graph_cal) = problem()
     cases = {
         "tracking linearize, ray+dist": lambda m: lambda: m[0].linearize(T, X_f, X_k, Q, valid),
         "tracking linearize, calibrated": lambda m: (
             lambda: m[0].linearize(T, X_f, X_k, Q, valid, ref_tracking.TrackingConfig(), K)
         ),
-        "backend 1 block, ray+dist": lambda m: lambda: m[1].linearize(T_WC, X, C, *blk),
-        "backend 1 block, calibrated": lambda m: (
-            lambda: m[1].linearize(T_WC, X, C, *blk, ref_backend.BackendConfig(), K)
-        ),
+        "backend 1 block, ray+dist": lambda m: lambda: m[1].linearize(T_WC, graph),
+        "backend 1 block, calibrated": lambda m: lambda: m[1].linearize(T_WC, graph_cal),
     }
     times: dict[str, dict[str, float]] = {name: {} for name in cases}
     for name, make in cases.items():
@@ -69,7 +73,7 @@ def main() -> None:
             make((ref_tracking, ref_backend)), repeat=max(3, args.repeat // 3)
         )
     for fp in ("f64", "f32"):
-        mslam_fast.init("cpu", fp)
+        mslam_fast.init(args.arch, fp)
         for name, make in cases.items():
             times[name][fp] = best_of(
                 make((fast_tracking, fast_backend)), repeat=args.repeat, warmup=2
@@ -86,13 +90,28 @@ def main() -> None:
                 f"{t['ref'] / t['f32']:.0f}x",
             ]
         )
+    where = "Taichi on the CPU" if args.arch == "cpu" else _gpu_name()
     body = (
         f"{W}x{H} = {H * W} pixels, 90 % valid; best of {args.repeat} (reference: best of "
-        f"{max(3, args.repeat // 3)}) after warm-up; times in ms. CPU only (no GPU was lent).\n\n"
+        f"{max(3, args.repeat // 3)}) after warm-up; times in ms; fast kernels: {where}.\n\n"
         + table(["case", "reference", "fast f64", "fast f32", "speed-up f64", "speed-up f32"], rows)
     )
-    write_section("tracking", "Tracking and backend linearisation", body)
+    if args.arch == "cpu":
+        write_section("tracking", "Tracking and backend linearisation", body)
+    else:
+        write_section("tracking-cuda", "Tracking and backend linearisation on CUDA", body)
     print(body)
+
+
+def _gpu_name() -> str:
+    """The GPU's name from nvidia-smi, for the section's text."""
+    import subprocess
+
+    try:
+        out = subprocess.run(["nvidia-smi", "-L"], capture_output=True, text=True, timeout=20)
+        return f"Taichi on CUDA, {out.stdout.strip().splitlines()[0]}"
+    except (OSError, IndexError, subprocess.SubprocessError):
+        return "Taichi on CUDA"
 
 
 if __name__ == "__main__":

@@ -7,6 +7,8 @@ allclose-style (integer matches, validity masks) are listed as shares in ``SHARE
 
 from __future__ import annotations
 
+import os
+
 TOL: dict[tuple[str, str], dict[str, float]] = {
     # Sim(3): worst measured over 1500x8 hypothesis draws (tests/strategies.py), ref vs fast CPU:
     # f64 exp/log/retract 9e-11 (lietorch's closed-form W at theta ~ sigma ~ 1e-6 cancels, both
@@ -46,6 +48,12 @@ SHARE: dict[tuple[str, str], float] = {
     ("matching", "f64"): 1.0,
     ("matching", "f32"): 0.99,
 }
+if os.environ.get("MSLAM_FAST_ARCH", "cpu") == "cuda":
+    # On CUDA the compiler fuses multiply-adds that NumPy and the CPU build round separately;
+    # the float64 LM then ends a few pixels' trajectories elsewhere (measured on an H100:
+    # 0.9990 and 0.9994 of the iter_proj positions within 1e-9, 0.9974 of the idx of a 32 x 24
+    # pair with bad points, i.e. 2 pixels). Every other tolerance holds as on the CPU.
+    SHARE[("matching", "f64")] = 0.99
 
 
 def tol(module: str, fp: str) -> dict[str, float]:
