@@ -6,7 +6,7 @@ from typing import Any
 
 import numpy as np
 
-from mslam_fast._runtime import ensure_init
+from mslam_fast._runtime import ensure_init, generation
 
 Array = np.ndarray[Any, Any]
 
@@ -53,7 +53,7 @@ def descriptors(x: Any, name: str) -> Array:
     return x
 
 
-def scratch(B: int, H: int, W: int, F: int, N: int, pad: int) -> tuple[Array, Array]:
+def scratch(B: int, H: int, W: int, F: int, N: int, pad: int) -> tuple[Any, Any]:
     """Zeroed runtime-type scratch: image-1 descriptors with a border of ``pad`` zero pixels,
     as rows ``(B·(H + 2 pad)·(W + 2 pad), Fp)``, and target rows ``(B·N, Fp)``; F zero-padded to
     a multiple of 8 (one AVX register of f32) for the vectorised dot products (24 stays 24;
@@ -63,28 +63,40 @@ def scratch(B: int, H: int, W: int, F: int, N: int, pad: int) -> tuple[Array, Ar
     padding columns, and read a row only after writing it in the same call, so a kept pair
     stays valid. Fresh zeroed pages cost the first write of each page: 77 MB per 512x384 call
     in float64, 15-30 ms of a ~80 ms match on the 2-core machine (at 160x120 it was noise).
+    On CUDA they are Taichi ndarrays in GPU memory, which the kernels use in place: as NumPy
+    arrays they were copied to the GPU and back at every call.
     """
     Fp = -(-F // _PAD) * _PAD
-    dt = ensure_init().dtype
-    key = ("scratch", B, H, W, F, N, pad, np.dtype(dt).str)
-    return _kept(
-        key,
-        lambda: (np.zeros((B * (H + 2 * pad) * (W + 2 * pad), Fp), dt), np.zeros((B * N, Fp), dt)),
-    )
+    rows = (B * (H + 2 * pad) * (W + 2 * pad), Fp), (B * N, Fp)
+    return _kept(("scratch", B, H, W, F, N, pad), lambda: tuple(_zeros(r) for r in rows))
 
 
-def ray_scratch(B: int, H: int, W: int) -> Array:
+def ray_scratch(B: int, H: int, W: int) -> Any:
     """The (B, H, W, 9) runtime-type image of unit rays and their gradients, which the kernel
     writes whole each call before reading it; kept per thread and shape like :func:`scratch`."""
-    dt = ensure_init().dtype
-    return _kept(("rays", B, H, W, np.dtype(dt).str), lambda: np.empty((B, H, W, 9), dt))
+    return _kept(("rays", B, H, W), lambda: _zeros((B, H, W, 9)))
 
 
 _KEPT = threading.local()
 
 
+def _zeros(shape: tuple[int, ...]) -> Any:
+    """A zeroed runtime-type array: NumPy on the CPU, a ``ti.ndarray`` on the GPU."""
+    rt = ensure_init()
+    if rt.arch == "cpu" or 0 in shape:  # Taichi has no empty ndarrays (an empty batch)
+        return np.zeros(shape, rt.dtype)
+    import taichi as ti
+
+    a = ti.ndarray(ti.f64 if rt.fp == "f64" else ti.f32, shape)
+    a.fill(0)
+    return a
+
+
 def _kept(key: tuple, make: Any) -> Any:
-    """This thread's last value for ``key[0]`` if it was made for ``key``, else ``make()``."""
+    """This thread's last value for ``key[0]`` if it was made for ``key`` under the current
+    runtime (arch, precision and Taichi initialisation), else ``make()``, kept."""
+    rt = ensure_init()
+    key = (*key, rt.arch, rt.fp, generation())
     kept = getattr(_KEPT, key[0], None)
     if kept is None or kept[0] != key:
         kept = (key, make())

@@ -38,6 +38,9 @@ class Runtime:
 
 
 _current: Runtime | None = None
+#: How many times Taichi was (re)initialised: arrays allocated by Taichi (``ti.ndarray``) are
+#: freed by ``ti.reset`` and must not outlive the initialisation they came from.
+_generation = 0
 
 
 def _normalise_fp(default_fp: Any) -> str:
@@ -93,7 +96,14 @@ def init(arch: str = "cpu", default_fp: Any = None) -> Runtime:
     return rt
 
 
+def generation() -> int:
+    """The number of Taichi initialisations so far (see ``_generation``)."""
+    return _generation
+
+
 def _ti_init(ti: Any, rt: Runtime) -> None:
+    global _generation
+    _generation += 1
     # ti.init prints "[Taichi] Starting on arch=..." unconditionally; keep stdout clean for
     # commands that print JSON.
     ti_fp = ti.f64 if rt.fp == "f64" else ti.f32
