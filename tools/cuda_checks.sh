@@ -3,7 +3,8 @@
 # dill; see DEV_NOTES.md): the parity suite on Taichi's CUDA backend (no CPU fallback), the
 # GPU-only tests, then the matching, tracking/backend and bundle-adjustment timings (RESULTS.md
 # sections "matching-cuda", "tracking-cuda", "ba-cuda"; the last one only when BAL=FILE names
-# Ladybug-49, since ../shared does not travel). Logs and the updated RESULTS.md go to $OUT.
+# the Ladybug-49 BAL file, problem-49-7776-pre.txt, which the repository does not hold). Logs and
+# the updated RESULTS.md go to $OUT.
 set -u
 OUT=${OUT:-/tmp/cuda_checks}
 mkdir -p "$OUT"
