@@ -165,3 +165,51 @@ def test_import_graph_has_no_cycle(package: str) -> None:
 def test_cycle_finder_finds_a_cycle() -> None:
     assert _cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
     assert _cycle({"a": {"b"}, "b": set()}) is None
+
+
+#: The application's own layers, bottom to top (docs/architecture.md): a module imports only
+#: from its own layer or below. The package ``mslam`` itself (its lazy public names) is the API.
+APP_LAYERS: tuple[tuple[str, ...], ...] = (
+    ("mslam.atomic",),
+    ("mslam.formats", "mslam.bal", "mslam.kernels", "mslam.evaluate", "mslam.baselines"),
+    ("mslam.datasets", "mslam.priors"),
+    ("mslam.config", "mslam.config_ranges"),
+    ("mslam.system",),
+    ("mslam.commands", "mslam.cli"),
+)
+
+
+def _app_layer(module: str) -> int | None:
+    """The layer index of an ``mslam`` module, None for the package itself."""
+    for rank, prefixes in enumerate(APP_LAYERS):
+        if any(module == p or module.startswith(p + ".") for p in prefixes):
+            return rank
+    return None
+
+
+def test_every_app_module_has_a_layer() -> None:
+    missing = [m for m in _modules("mslam") if m != "mslam" and _app_layer(m) is None]
+    assert not missing, f"add these modules to APP_LAYERS: {missing}"
+
+
+def test_no_back_arrow_inside_the_application() -> None:
+    """Nothing imports from a layer above its own: the commands and the CLI sit on top, and
+    no module below them imports them (writers use ``mslam.atomic``)."""
+    mods = _modules("mslam")
+    bad = []
+    for name, path in mods.items():
+        rank = _app_layer(name)
+        if rank is None:
+            continue
+        for imp, _ in _imports(path, mods):
+            target = _app_layer(imp) if imp.split(".")[0] == "mslam" else None
+            if target is not None and target > rank:
+                bad.append(f"{name} -> {imp}")
+    assert not bad, bad
+
+
+def test_back_arrow_finder_sees_a_planted_import(tmp_path: Path) -> None:
+    path = tmp_path / "m.py"
+    path.write_text("from mslam.commands import UserError\n")
+    imports = _imports(path, _modules("mslam"))
+    assert any(_app_layer(imp) == len(APP_LAYERS) - 1 for imp, _ in imports)

@@ -12,7 +12,7 @@ What a run writes and what the evaluation reads:
 * **PLY point clouds**: binary little-endian, vertex ``x y z`` float32 + ``red green blue``
   uchar, upstream's ``save_ply`` layout.
 
-Writers go through :func:`mslam.commands.write_atomic` (temporary file + rename), so an
+Writers go through :func:`mslam.atomic.write_atomic` (temporary file + rename), so an
 error never leaves a partial file. Readers raise ``ValueError("<file>:<line>: <what>")`` on a
 malformed line and ``FileNotFoundError`` on a missing file.
 
@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from mslam.commands import write_atomic
+from mslam.atomic import write_atomic
 from mslam_ref import so3
 from mslam_ref.conventions import FloatArray, as_float_array
 

@@ -178,13 +178,13 @@ def test_full_disk_is_one_line_and_leaves_nothing(tmp_path, monkeypatch, capsys,
 
 
 def test_ba_full_disk(tmp_path, monkeypatch, capsys):
-    from mslam.commands import outdir
+    from mslam import atomic
 
     def full(*a, **k):
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
 
     bal = _bal(tmp_path)
-    monkeypatch.setattr(outdir, "_write", full)
+    monkeypatch.setattr(atomic, "_write", full)
     rc = main(["ba", str(bal), "--out", str(tmp_path / "solved.txt"), "--iterations", "1"])
     one_line_error(capsys, rc, "No space left on device")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["problem.txt"]
@@ -194,11 +194,11 @@ def test_sigkill_during_ba_out_leaves_no_temporary_file(tmp_path):
     bal, out = _bal(tmp_path), tmp_path / "solved.txt"
     code = (
         "import os, signal, sys\n"
-        "import mslam.commands.outdir as od\n"
+        "import mslam.atomic as atomic\n"
         "def killed(path, data):\n"
         "    open(path, 'w').close()\n"
         "    os.kill(os.getpid(), signal.SIGKILL)\n"
-        "od._write = killed\n"
+        "atomic._write = killed\n"
         "from mslam.cli import main\n"
         "sys.exit(main(sys.argv[1:]))\n"
     )
@@ -284,8 +284,7 @@ def test_second_ctrl_c_leaves_nothing(tmp_path, monkeypatch):
 
 _KILLER = """
 import os, signal, sys
-import mslam.commands as c
-import mslam.formats as mio
+import mslam.atomic as a
 n = {"k": 0}
 def arm(mod, name):
     f = getattr(mod, name)
@@ -295,9 +294,11 @@ def arm(mod, name):
             os.kill(os.getpid(), signal.SIGKILL)
         return f(*a, **k)
     setattr(mod, name, wrapped)
+arm(a, "write_atomic")  # before any writer imports it
 import mslam.commands.outdir as od
+import mslam.formats as mio
 from mslam.datasets import tum
-arm(c, "write_atomic"); arm(mio, "write_tum"); arm(mio, "write_ply"); arm(od, "_move_into_place")
+arm(mio, "write_tum"); arm(mio, "write_ply"); arm(od, "_move_into_place")
 arm(tum, "encode_png")
 from mslam.cli import main
 sys.exit(main(sys.argv[2:]))

@@ -22,8 +22,9 @@ from mslam.kernels import load_kernels
 from mslam.priors.descriptors import DescriptorConfig, _projection, patch_descriptors
 from mslam.priors.rgbd_pose import icp_sample
 from mslam.system import open_source, run_slam
+from mslam.system.edges import cannot_pass
 from mslam.system.global_opt import residual_grid
-from mslam.system.graph import FactorGraph, cannot_pass, match_pairs
+from mslam.system.graph import FactorGraph
 from mslam.system.outputs import evaluate_run
 from mslam.system.worker import BackendWorker, SharedPrior
 
@@ -108,26 +109,24 @@ def test_doomed_candidates_are_rejected_before_matching(fast64) -> None:
     cfg = load_config()
     src = open_source("synthetic:loop:24:48x36", cfg)
     system, _ = run_slam(src, cfg, load_kernels("fast"))
-    store, k = system.keyframes, len(system.keyframes) - 1
+    k = len(system.keyframes) - 1
+    store = system.keyframes
     assert k >= 3
     bad = store[1].frame.index
     prior = _FailingPrior(system.prior, bad)
-    bcfg = system.backend_cfg
-    args = (store, prior, system.kernels, system.matching_cfg, bcfg.Q_conf)
+    bcfg = system.backend.backend_cfg
+    builder = dataclasses.replace(system.backend.edges, prior=prior)
     ii, jj = [k - 1, 1, 0], [k, k, k]
     # What matching every candidate would decide.
-    full = match_pairs(store, ii, jj, *args[1:])
+    full = builder.match_pairs(ii, jj)
     expect = [e.i == e.j - 1 or e.match_frac >= bcfg.min_match_frac for e in full]
     assert expect[1] is False  # the failing candidate is rejected after matching
     prior.calls = 0
     g = FactorGraph()
-    g.add_factors(ii, jj, *args, min_match_frac=bcfg.min_match_frac)
+    g.add_factors(builder, ii, jj, min_match_frac=bcfg.min_match_frac)
     assert [(e.i, e.j) for e in g.edges] == [(i, j) for i, j, x in zip(ii, jj, expect) if x]
     assert g.candidates_rejected_early == 1 and g.candidates_tested == 3
     assert prior.calls == 3 + 2  # forward decodes, then backward ones for the survivors only
-    strict = FactorGraph()
-    assert not strict.add_factors(ii, jj, *args, bcfg.min_match_frac, is_reloc=True)
-    assert not strict.edges
 
 
 def test_cannot_pass_is_the_quality_bound() -> None:
@@ -151,11 +150,11 @@ def test_background_backend_run_is_complete_and_accurate(fast64) -> None:
     assert bg.stats.backend_solves == len(bg.keyframes) - 1  # every keyframe got its solve
     assert bg.graph.count("retrieval") >= 1  # the loop still closes
     assert out[False][1]["ate_percent_of_path"] < 2 * max(out[True][1]["ate_percent_of_path"], 0.5)
-    assert not bg.worker._thread.is_alive()  # closed at the end of the run
+    assert bg.worker is not None and not bg.worker.alive  # closed at the end of the run
 
 
 def test_worker_errors_reach_the_frontend() -> None:
-    def step(k):
+    def step(k, known):
         raise FloatingPointError(f"solve {k} diverged")
 
     w = BackendWorker(step)
@@ -211,7 +210,7 @@ def test_run_precision_option(tmp_path, capsys) -> None:
 
 @pytest.mark.parametrize(("H", "W", "stride"), [(48, 64, 2), (36, 48, 4), (37, 51, 3), (5, 7, 1)])
 def test_grid_cells_number_the_grid_pixels_one_to_one(H, W, stride) -> None:
-    from mslam.system.frontend import _grid_cells
+    from mslam.system.tracker import grid_cells as _grid_cells
     from mslam_ref.pointmap import strided_pixels
 
     g = np.flatnonzero(strided_pixels(H, W, stride))

@@ -12,7 +12,8 @@ import pytest
 from mslam.config import load_config
 from mslam.kernels import load_kernels
 from mslam.system import Mode, open_source, run_slam
-from mslam.system.graph import FactorGraph, KeyframeStore
+from mslam.system.graph import FactorGraph
+from mslam.system.keyframes import KeyframeStore
 from mslam_ref import sim3
 
 LOOP = "synthetic:loop:24:64x48"

@@ -35,7 +35,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from mslam.commands import UserError, write_atomic
+from mslam.atomic import write_atomic
+from mslam.commands import UserError
 
 __all__ = [
     "DATASETS",

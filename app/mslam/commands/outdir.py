@@ -8,7 +8,8 @@
   one rename; every temporary file of the writers stays inside that box; on any error or
   Ctrl-C the temporary folder is removed, so the target holds either nothing new or one whole
   set. Temporary folders of killed runs (their PID is gone) are removed by the next run.
-* :func:`write_file_atomic` — the same for a single file (``ba --out``).
+* :func:`write_file_atomic` — the same for a single file (``ba --out``), through
+  :func:`mslam.atomic.write_atomic`, the one file-writing policy of the application.
 
 Public names, in reading order: check_target, staged_folder, write_file_atomic.
 """
@@ -21,11 +22,10 @@ import shutil
 from collections.abc import Iterator
 from pathlib import Path
 
+from mslam.atomic import remove_stale, temporary_name, write_atomic
 from mslam.commands import UserError
 
 __all__ = ["check_target", "staged_folder", "write_file_atomic"]
-
-_TMP_TAG = ".mslam-tmp-"
 
 
 def _existing_ancestor(path: Path) -> Path:
@@ -72,31 +72,10 @@ def check_target(
     return out
 
 
-def _pid_alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except OSError:
-        return True
-    return True
-
-
-def _remove_stale(parent: Path, name: str) -> None:
-    """Remove temporary folders of earlier runs into the same target whose process is gone."""
-    for p in parent.glob(f".{name}{_TMP_TAG}*"):
-        pid = p.name.rsplit("-", 1)[-1]
-        if pid.isdigit() and int(pid) != os.getpid() and not _pid_alive(int(pid)):
-            if p.is_dir():
-                shutil.rmtree(p, ignore_errors=True)
-            else:
-                p.unlink(missing_ok=True)
-
-
 def _move_into_place(tmp: Path, out: Path) -> None:
     """Rename ``tmp`` to ``out``; an existing ``out`` (empty, or --overwrite) is moved aside first."""
     if out.is_dir() and any(out.iterdir()):
-        old = out.with_name(f".{out.name}{_TMP_TAG}old-{os.getpid()}")
+        old = temporary_name(out, "old-")
         shutil.rmtree(old, ignore_errors=True)
         out.rename(old)
         tmp.rename(out)
@@ -115,8 +94,8 @@ def staged_folder(out: str | Path, overwrite: bool) -> Iterator[Path]:
     """
     out = Path(os.path.abspath(check_target(out, overwrite)))
     out.parent.mkdir(parents=True, exist_ok=True)
-    _remove_stale(out.parent, out.name)
-    box = out.with_name(f".{out.name}{_TMP_TAG}{os.getpid()}")
+    remove_stale(out.parent, out.name)
+    box = temporary_name(out)
     shutil.rmtree(box, ignore_errors=True)
     box.mkdir()
     stage = box / out.name  # writers that stage on their own (write_tum) stay inside the box
@@ -132,20 +111,12 @@ def staged_folder(out: str | Path, overwrite: bool) -> Iterator[Path]:
 
 
 def write_file_atomic(out: Path, data: bytes | str, overwrite: bool) -> None:
-    """Write one output file (``ba --out``) as ``.NAME.mslam-tmp-PID`` beside it, then rename;
-    a killed writer's temporary file is removed by the next write to the same target."""
+    """Write one output file (``ba --out``) after :func:`check_target`, atomically
+    (:func:`mslam.atomic.write_atomic`); a killed writer's temporary file is removed by the
+    next write to the same target."""
     out = Path(os.path.abspath(check_target(out, overwrite, kind="file")))
-    _remove_stale(out.parent, out.name)
-    tmp = out.with_name(f".{out.name}{_TMP_TAG}{os.getpid()}")
+    remove_stale(out.parent, out.name)
     try:
-        _write(tmp, data)
-        os.replace(tmp, out)
+        write_atomic(out, data)
     except OSError as exc:
         raise UserError(f"cannot write {out}: {exc.strerror or exc}") from None
-    finally:
-        tmp.unlink(missing_ok=True)
-
-
-def _write(path: Path, data: bytes | str) -> None:
-    with open(path, "wb" if isinstance(data, bytes) else "w") as fh:
-        fh.write(data)

@@ -15,7 +15,8 @@ import argparse
 import json
 from pathlib import Path
 
-from mslam.commands import UserError, print_json, write_atomic
+from mslam.atomic import write_atomic
+from mslam.commands import UserError, print_json
 
 __all__ = ["register", "run"]
 

@@ -1,8 +1,10 @@
-"""Paper §3.5 (docs/upstream.md §1.5, §7.3, §8) — graph construction and the global backend, synchronously.
+"""Paper §3.5 (docs/upstream.md §1.5, §7.3, §8) — the map and the global backend.
 
-Upstream runs these in a backend process; in single-thread mode the frontend waits for them.
-Here they are plain function calls after every new keyframe (and after a relocalisation),
-made by the frontend or, with ``single_thread: False``, by ``mslam.system.worker``:
+:class:`Backend` owns the map — the keyframes, the factor graph and the retrieval index — and
+does what a new keyframe triggers. Upstream runs this in a backend process; in single-thread
+mode the frontend waits for it. Here it is a plain method call after every new keyframe (and
+after a relocalisation), made by the frontend or, with ``single_thread: False``, by
+``mslam.system.worker``:
 
 1. candidates for the new keyframe ``k``: the previous keyframe ``k - 1`` (``n_consec = 1``)
    plus the retrieval database's answer (query, then insert ``k``; ``retrieval.k``,
@@ -13,59 +15,31 @@ made by the frontend or, with ``single_thread: False``, by ``mslam.system.worker
    every pixel by default); the poses are written back.
 
 Public names, in reading order:
-    backend_step, add_keyframe_edges, residual_grid, solve_backend
+    Backend, residual_grid
 """
 
 from __future__ import annotations
 
+import threading
 from typing import Any
 
 import numpy as np
 
-from mslam_ref import backend
+from mslam.config import SlamConfig
+from mslam.datasets.frame import Frame
+from mslam.kernels import KernelSet
+from mslam.priors.base import Prior
+from mslam.system.edges import EdgeBuilder, KnownPairs
+from mslam.system.graph import FactorGraph
+from mslam.system.keyframes import Keyframe, KeyframeStore
+from mslam.system.retrieval_features import RetrievalIndex
+from mslam.system.state import RunStats
+from mslam.system.tracker import flat
+from mslam_ref import backend, fusion
+from mslam_ref.conventions import FloatArray
 from mslam_ref.pointmap import strided_pixels
 
-__all__ = ["add_keyframe_edges", "backend_step", "residual_grid", "solve_backend"]
-
-
-def backend_step(system: Any, k: int) -> None:
-    """Everything a new keyframe ``k`` triggers: its graph edges, then the global solve
-    (timed as the ``graph`` and ``backend`` stages). Upstream: main.py::run_backend."""
-    with system.timer("graph"):
-        add_keyframe_edges(system, k)
-    with system.timer("backend"):
-        solve_backend(system)
-
-
-def add_keyframe_edges(system: Any, k: int) -> int:
-    """Graph construction for new keyframe ``k``; returns the number of edges added.
-
-    Upstream: main.py::run_backend (candidate list), global_opt.py::FactorGraph.add_factors.
-    """
-    kf = system.keyframes[k]
-    candidates = [k - 1] if k >= 1 else []
-    candidates += system.retrieval.update(kf.features)
-    seen: list[int] = []
-    for c in candidates:
-        if c != k and c not in seen and 0 <= c < len(system.keyframes):
-            seen.append(int(c))
-    if not seen:
-        return 0
-    before = len(system.graph)
-    system.graph.add_factors(
-        ii=seen,
-        jj=[k] * len(seen),
-        store=system.keyframes,
-        prior=system.prior,
-        kernels=system.kernels,
-        matching_cfg=system.matching_cfg,
-        Q_conf=system.backend_cfg.Q_conf,
-        min_match_frac=system.backend_cfg.min_match_frac,
-        kind="retrieval",
-        known=system.last_pair(),
-        stride=system.cfg.backend_pixel_stride(kf.shape),
-    )
-    return len(system.graph) - before
+__all__ = ["Backend", "residual_grid"]
 
 
 def residual_grid(shape: tuple[int, int], stride: int) -> np.ndarray:
@@ -78,38 +52,135 @@ def residual_grid(shape: tuple[int, int], stride: int) -> np.ndarray:
     return strided_pixels(*shape, stride).reshape(-1)
 
 
-def solve_backend(system: Any) -> dict[str, Any] | None:
-    """Global Gauss–Newton over every keyframe with an edge; writes the poses back.
+class Backend:
+    """The map (keyframes, graph, retrieval) and the global solve (module docstring).
 
-    Upstream: global_opt.py::FactorGraph.solve_GN_rays / solve_GN_calib (docs/upstream.md §8). Pointmaps
-    are ray-constrained first in calibrated mode. Returns a record of the solve (or None when
-    the graph has no edge).
+    Args:
+        cfg: the run configuration.
+        kernels: the kernel set (``matching.match``, ``backend.solve``).
+        prior: the prior (shared with the frontend; serialised when the backend has a thread).
+        K: (3, 3) intrinsics in calibrated mode, else None.
+        stats: the run's counters and stage timers.
     """
-    with system.lock:  # one consistent snapshot (the frontend may be adding a keyframe)
-        T_WC = system.keyframes.poses()
-        X, C = system.keyframes.pointmaps(system._fusion_ref, system.K)
-    stride = system.cfg.backend_pixel_stride(X.shape[1:3])
-    pixels = None if stride == 1 else np.flatnonzero(residual_grid(X.shape[1:3], stride))
-    blocks = system.graph.two_way_blocks(pixels)
-    if len(blocks.ii) == 0:
-        return None
-    graph = backend.pose_graph(
-        X, C, blocks.ii, blocks.jj, blocks.idx, blocks.valid, blocks.Q, system.K, pixels
-    )
-    T_new, info = system.kernels.backend.solve(T_WC, graph, system.backend_cfg)
-    T_new = np.asarray(T_new, dtype=np.float64)
-    if not np.all(np.isfinite(T_new)):
-        raise FloatingPointError("backend.solve returned non-finite poses")
-    with system.lock:
-        system.keyframes.set_poses(T_new, np.arange(len(T_new)))
-    system.stats.backend_solves += 1
-    record = {
-        "keyframes": len(system.keyframes),
-        "edges": len(system.graph),
-        "iterations": info.iterations,
-        "cost": info.cost,
-        "step_norms": list(info.step_norms),
-        "failed": info.failed,
-    }
-    system.backend_history.append(record)
-    return record
+
+    def __init__(
+        self,
+        cfg: SlamConfig,
+        kernels: KernelSet,
+        prior: Prior,
+        K: FloatArray | None,
+        stats: RunStats,
+    ) -> None:
+        self.cfg, self.kernels, self.K, self.stats = cfg, kernels, K, stats
+        self.backend_cfg = cfg.backend()
+        self.fusion_cfg = cfg.fusion()
+        self.lock = threading.RLock()  # keyframes shared with the background backend
+        self.keyframes = KeyframeStore()
+        self.graph = FactorGraph()
+        self.retrieval = RetrievalIndex(cfg.retrieval())
+        self.edges = EdgeBuilder(
+            self.keyframes, prior, kernels, cfg.matching(), self.backend_cfg.Q_conf
+        )
+        self.history: list[dict[str, Any]] = []
+
+    def add_keyframe(
+        self,
+        frame: Frame,
+        T_WC: FloatArray,
+        X: np.ndarray,
+        C: np.ndarray,
+        D: np.ndarray,
+        Q: np.ndarray,
+    ) -> int:
+        """Append a keyframe with a fresh pointmap state and its retrieval features.
+
+        Args:
+            frame: the input frame; T_WC: (8,) its pose; X (H, W, 3), C (H, W): its pointmap
+            and confidence; D (H, W, F), Q (H, W): its descriptors and their confidence.
+
+        Returns:
+            the keyframe's index.
+        """
+        shape = (int(X.shape[0]), int(X.shape[1]))
+        state = fusion.init_pointmap(flat(X), flat(C), self.fusion_cfg)
+        kf = Keyframe(
+            frame=frame,
+            T_WC=np.asarray(T_WC, np.float64).copy(),
+            state=state,
+            shape=shape,
+            features=self.retrieval.features(D, Q),
+        )
+        with self.lock:
+            return self.keyframes.append(kf)
+
+    def step(self, k: int, known: KnownPairs | None = None) -> None:
+        """Everything a new keyframe ``k`` triggers: its graph edges, then the global solve
+        (timed as the ``graph`` and ``backend`` stages). Upstream: main.py::run_backend.
+
+        ``known``: decodes the frontend already made (its last tracking pair), reused.
+        """
+        with self.stats.timer("graph"):
+            self.add_keyframe_edges(k, known)
+        with self.stats.timer("backend"):
+            self.solve()
+
+    def add_keyframe_edges(self, k: int, known: KnownPairs | None = None) -> int:
+        """Graph construction for new keyframe ``k``; returns the number of edges added.
+
+        Upstream: main.py::run_backend (candidate list), global_opt.py::FactorGraph.add_factors.
+        """
+        kf = self.keyframes[k]
+        candidates = [k - 1] if k >= 1 else []
+        candidates += self.retrieval.update(kf.features)
+        seen: list[int] = []
+        for c in candidates:
+            if c != k and c not in seen and 0 <= c < len(self.keyframes):
+                seen.append(int(c))
+        if not seen:
+            return 0
+        before = len(self.graph)
+        self.graph.add_factors(
+            self.edges,
+            ii=seen,
+            jj=[k] * len(seen),
+            min_match_frac=self.backend_cfg.min_match_frac,
+            known=known,
+            stride=self.cfg.backend_pixel_stride(kf.shape),
+        )
+        return len(self.graph) - before
+
+    def solve(self) -> dict[str, Any] | None:
+        """Global Gauss–Newton over every keyframe with an edge; writes the poses back.
+
+        Upstream: global_opt.py::FactorGraph.solve_GN_rays / solve_GN_calib (docs/upstream.md
+        §8). Pointmaps are ray-constrained first in calibrated mode. Returns a record of the
+        solve (or None when the graph has no edge).
+        """
+        with self.lock:  # one consistent snapshot (the frontend may be adding a keyframe)
+            T_WC = self.keyframes.poses()
+            X, C = self.keyframes.pointmaps(fusion, self.K)
+        stride = self.cfg.backend_pixel_stride(X.shape[1:3])
+        pixels = None if stride == 1 else np.flatnonzero(residual_grid(X.shape[1:3], stride))
+        blocks = self.graph.two_way_blocks(pixels)
+        if len(blocks.ii) == 0:
+            return None
+        graph = backend.pose_graph(
+            X, C, blocks.ii, blocks.jj, blocks.idx, blocks.valid, blocks.Q, self.K, pixels
+        )
+        T_new, info = self.kernels.backend.solve(T_WC, graph, self.backend_cfg)
+        T_new = np.asarray(T_new, dtype=np.float64)
+        if not np.all(np.isfinite(T_new)):
+            raise FloatingPointError("backend.solve returned non-finite poses")
+        with self.lock:
+            self.keyframes.set_poses(T_new, np.arange(len(T_new)))
+        self.stats.backend_solves += 1
+        record = {
+            "keyframes": len(self.keyframes),
+            "edges": len(self.graph),
+            "iterations": info.iterations,
+            "cost": info.cost,
+            "step_norms": list(info.step_norms),
+            "failed": info.failed,
+        }
+        self.history.append(record)
+        return record

@@ -33,7 +33,9 @@ from typing import Any
 import cv2
 import numpy as np
 
-from mslam.commands import write_atomic
+from mslam.atomic import write_atomic
+from mslam.datasets.frame import FrameSequence
+from mslam.system.frontend import SlamSystem
 from mslam_ref import sim3
 
 __all__ = [
@@ -50,7 +52,7 @@ C_CONF_THRESHOLD = 1.5
 
 
 def reconstruction_points(
-    system: Any, c_thresh: float = C_CONF_THRESHOLD
+    system: SlamSystem, c_thresh: float = C_CONF_THRESHOLD
 ) -> tuple[np.ndarray, np.ndarray]:
     """World points and colours of all keyframes (upstream evaluate.py::save_reconstruction).
 
@@ -80,7 +82,7 @@ def _path_length(P: np.ndarray) -> float:
     return float(np.linalg.norm(np.diff(P, axis=0), axis=1).sum()) if len(P) > 1 else 0.0
 
 
-def evaluate_run(system: Any, sequence: Any) -> dict[str, Any]:
+def evaluate_run(system: SlamSystem, sequence: FrameSequence) -> dict[str, Any]:
     """ATE (Sim(3)) of all frames and of the keyframes against ground truth, path lengths.
 
     ``path_length`` is the ground truth's, summed over steps between consecutive frames that
@@ -121,7 +123,7 @@ def evaluate_run(system: Any, sequence: Any) -> dict[str, Any]:
     return out
 
 
-def summary_dict(system: Any, meta: dict[str, Any], ev: dict[str, Any]) -> dict[str, Any]:
+def summary_dict(system: SlamSystem, meta: dict[str, Any], ev: dict[str, Any]) -> dict[str, Any]:
     """The JSON summary (docs/upstream.md §13 plus what users ask for, §14)."""
     st = system.stats
     graph = system.graph
@@ -177,7 +179,7 @@ def summary_dict(system: Any, meta: dict[str, Any], ev: dict[str, Any]) -> dict[
 
 
 def plot_trajectory(
-    system: Any, ev: dict[str, Any], title: str = "", baseline: Any = None
+    system: SlamSystem, ev: dict[str, Any], title: str = "", baseline: Any = None
 ) -> bytes:
     """PNG bytes: top view and the position error over time, both panels labelled.
 
@@ -252,7 +254,7 @@ def plot_trajectory(
     return buf.getvalue()
 
 
-def _plot_keyframes(ax: Any, system: Any, to2d: Any) -> None:
+def _plot_keyframes(ax: Any, system: SlamSystem, to2d: Any) -> None:
     """Keyframe dots and one line per loop-closure (retrieval / reloc) edge."""
     if len(system.keyframes) == 0:
         return
@@ -300,7 +302,7 @@ def _shade_lost(ax: Any, spans: list, poses: list, gt_ts: np.ndarray) -> None:
 
 
 def write_outputs(
-    out_dir: str | Path, system: Any, sequence: Any, meta: dict[str, Any]
+    out_dir: str | Path, system: SlamSystem, sequence: FrameSequence, meta: dict[str, Any]
 ) -> dict[str, Any]:
     """Compute every output in memory, then write each file atomically; returns the summary."""
     from mslam import formats as mio

@@ -25,61 +25,56 @@ Public names, in reading order:
 
 from __future__ import annotations
 
-from typing import Any
-
+from mslam.config import RelocConfig
 from mslam.datasets.frame import Frame
+from mslam.priors.base import Prior
+from mslam.system.global_opt import Backend
 from mslam_ref import sim3
 
 __all__ = ["relocalise"]
 
 
-def relocalise(system: Any, frame: Frame) -> bool:
+def relocalise(frame: Frame, prior: Prior, backend: Backend, cfg: RelocConfig) -> bool:
     """Try to relocalise ``frame``; True (and a new keyframe, the last one) on success.
 
     Upstream: main.py::relocalization. Paper: §3.6.
 
     Args:
-        system: the :class:`~mslam.system.SlamSystem` (keyframes, graph, retrieval, prior,
-            kernels, configs).
         frame: the current frame.
+        prior: its ``mono`` and ``pair`` give the frame's pointmap and descriptors.
+        backend: the map (keyframes, graph, retrieval) and the global solve.
+        cfg: ``reloc.*`` (``min_match_frac``, ``strict``).
 
     Returns:
         whether the frame was relocalised.
     """
-    from mslam.system.global_opt import solve_backend
-
-    with system.timer("prior"):
-        X, C = system.prior.mono(frame)
-        p = system.prior.pair(frame, frame)
-    features = system.retrieval.features(p.D_ii, p.Q_ii)
-    candidates = system.retrieval.query(features)
+    with backend.stats.timer("prior"):
+        X, C = prior.mono(frame)
+        p = prior.pair(frame, frame)
+    features = backend.retrieval.features(p.D_ii, p.Q_ii)
+    candidates = backend.retrieval.query(features)
     if not candidates:
         return False
-    n = system.new_keyframe(frame, sim3.identity(), X, C, p.D_ii, p.Q_ii)
-    before = len(system.graph.edges)
-    system.graph.add_factors(
+    n = backend.add_keyframe(frame, sim3.identity(), X, C, p.D_ii, p.Q_ii)
+    before = len(backend.graph.edges)
+    backend.graph.add_factors(
+        backend.edges,
         ii=[n] * len(candidates),
         jj=list(candidates),
-        store=system.keyframes,
-        prior=system.prior,
-        kernels=system.kernels,
-        matching_cfg=system.matching_cfg,
-        Q_conf=system.backend_cfg.Q_conf,
-        min_match_frac=system.cfg.reloc.min_match_frac,
-        is_reloc=False,
+        min_match_frac=cfg.min_match_frac,
         kind="reloc",
-        stride=system.cfg.backend_pixel_stride(system.keyframes[n].shape),
+        stride=backend.cfg.backend_pixel_stride(backend.keyframes[n].shape),
     )
-    accepted = [e.j for e in system.graph.edges[before:]]
-    if not accepted or (system.cfg.reloc.strict and candidates[0] not in accepted):
-        system.graph.remove_keyframe(n)
-        system.keyframes.pop_last()
+    accepted = [e.j for e in backend.graph.edges[before:]]
+    if not accepted or (cfg.strict and candidates[0] not in accepted):
+        backend.graph.remove_keyframe(n)
+        backend.keyframes.pop_last()
         return False
-    system.retrieval.update(features)  # query + insert: the database id becomes n
-    kf = system.keyframes[n]
+    backend.retrieval.update(features)  # query + insert: the database id becomes n
+    kf = backend.keyframes[n]
     best = next(c for c in candidates if c in accepted)
-    kf.T_WC = system.keyframes[best].T_WC.copy()
+    kf.T_WC = backend.keyframes[best].T_WC.copy()
     kf.T_WC_init = kf.T_WC.copy()
-    with system.timer("backend"):
-        solve_backend(system)
+    with backend.stats.timer("backend"):
+        backend.solve()
     return True

@@ -32,8 +32,9 @@ import numpy as np
 
 from mslam.config import SlamConfig
 from mslam.datasets import load_sequence
-from mslam.datasets.frame import Frame
+from mslam.datasets.frame import Frame, FrameSequence
 from mslam.datasets.views import ResizedSequence, SubsampledSequence, TruncatedSequence
+from mslam.priors.base import Prior
 
 __all__ = ["PRIORS", "Source", "open_source"]
 
@@ -52,14 +53,16 @@ class Source:
         name: human-readable source name.
     """
 
-    sequence: Any
-    prior: Any
+    sequence: FrameSequence
+    prior: Prior
     prior_name: str
     K: np.ndarray | None
     name: str
 
 
-def _make_prior(name: str, sequence: Any, use_calib: bool = False, cfg: Any = None) -> Any:
+def _make_prior(
+    name: str, sequence: Any, use_calib: bool = False, cfg: SlamConfig | None = None
+) -> Prior:
     if name == "twoview":
         from mslam.priors.twoview import TwoViewPrior
 

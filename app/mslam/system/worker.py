@@ -9,7 +9,7 @@ frontend tracks the next frames against the poses the backend has written so far
 
 What is shared, and how:
 
-* keyframe list, poses and pointmaps — ``SlamSystem.lock`` (an ``RLock``) guards appending a
+* keyframe list, poses and pointmaps — ``Backend.lock`` (an ``RLock``) guards appending a
   keyframe, replacing a pointmap and the backend's snapshot and write-back of the poses;
 * the prior — :class:`SharedPrior` serialises ``pair``/``mono`` (its per-frame caches are not
   thread-safe) and keeps ``last_status`` per thread, so the frontend reads its own pair's status;
@@ -30,7 +30,13 @@ from __future__ import annotations
 
 import queue
 import threading
+from collections.abc import Callable
 from typing import Any
+
+from mslam.datasets.frame import Frame
+from mslam.priors.base import PairPrediction, Prior
+from mslam.system.edges import KnownPairs
+from mslam_ref.conventions import FloatArray
 
 __all__ = ["BackendWorker", "SharedPrior"]
 
@@ -41,7 +47,7 @@ class SharedPrior:
     Every other attribute is the wrapped prior's.
     """
 
-    def __init__(self, prior: Any) -> None:
+    def __init__(self, prior: Prior) -> None:
         self._prior = prior
         self._lock = threading.Lock()
         self._local = threading.local()
@@ -54,41 +60,41 @@ class SharedPrior:
         """Status of this thread's last ``pair`` call ("ok" for priors that report none)."""
         return getattr(self._local, "status", "ok")
 
-    def pair(self, frame_i: Any, frame_j: Any) -> Any:
+    def pair(self, frame_i: Frame, frame_j: Frame) -> PairPrediction:
         """The wrapped prior's ``pair``, one thread at a time."""
         with self._lock:
             out = self._prior.pair(frame_i, frame_j)
             self._local.status = getattr(self._prior, "last_status", "ok")
         return out
 
-    def mono(self, frame: Any) -> Any:
+    def mono(self, frame: Frame) -> tuple[FloatArray, FloatArray]:
         """The wrapped prior's ``mono``, one thread at a time."""
         with self._lock:
             return self._prior.mono(frame)
 
 
 class BackendWorker:
-    """Runs ``step(k)`` for each submitted keyframe index in a daemon thread, in order.
+    """Runs ``step(k, known)`` for each submitted keyframe in a daemon thread, in order.
 
     Args:
-        step: the work for one new keyframe (``global_opt.backend_step`` bound to a system).
+        step: the work for one new keyframe (``Backend.step``).
     """
 
-    def __init__(self, step: Any) -> None:
+    def __init__(self, step: Callable[[int, KnownPairs | None], None]) -> None:
         self._step = step
-        self._queue: queue.Queue[int | None] = queue.Queue()
+        self._queue: queue.Queue[tuple[int, KnownPairs] | None] = queue.Queue()
         self._error: BaseException | None = None
         self._thread = threading.Thread(target=self._run, name="mslam-backend", daemon=True)
         self._thread.start()
 
     def _run(self) -> None:
         while True:
-            k = self._queue.get()
+            item = self._queue.get()
             try:
-                if k is None:
+                if item is None:
                     return
                 if self._error is None:
-                    self._step(k)
+                    self._step(*item)
             except BaseException as exc:  # handed to the frontend thread
                 self._error = exc
             finally:
@@ -99,12 +105,17 @@ class BackendWorker:
             error, self._error = self._error, None
             raise RuntimeError(f"background backend failed: {error}") from error
 
-    def submit(self, k: int) -> None:
-        """Queue keyframe ``k``'s graph step and solve."""
+    @property
+    def alive(self) -> bool:
+        """Whether the worker thread still runs (False once closed)."""
+        return self._thread.is_alive()
+
+    def submit(self, k: int, known: KnownPairs | None = None) -> None:
+        """Queue keyframe ``k``'s graph step and solve (``known``: decodes to reuse)."""
         self._raise()
         if not self._thread.is_alive():
             raise RuntimeError("background backend: the worker has been closed")
-        self._queue.put(int(k))
+        self._queue.put((int(k), known or {}))
 
     def drain(self) -> None:
         """Wait until every queued keyframe has been processed."""

@@ -1,0 +1,150 @@
+"""The frame loop (upstream main.py's ``__main__``): every frame of a source through the system.
+
+Public names, in reading order:
+    run_slam
+"""
+
+from __future__ import annotations
+
+import contextlib
+import signal
+import sys
+import threading
+import time
+import warnings
+from collections.abc import Iterator
+from types import FrameType
+from typing import Any
+
+import cv2
+
+from mslam.config import SlamConfig
+from mslam.kernels import KernelSet
+from mslam.system.frontend import SlamSystem
+from mslam.system.sources import Source
+from mslam.system.state import Mode
+
+__all__ = ["run_slam"]
+
+
+def run_slam(
+    source: Source,
+    cfg: SlamConfig,
+    kernels: KernelSet,
+    progress: bool = False,
+    system: SlamSystem | None = None,
+    skip_bad_frames: bool = False,
+) -> tuple[SlamSystem, dict[str, Any]]:
+    """Run the SLAM loop over every frame of ``source``.
+
+    Upstream: main.py ``__main__`` (the frame loop) with ``single_thread: True``.
+
+    Reliability: a frame that cannot be read (``OSError``, ``ValueError``, ``cv2.error``) is a
+    ``ValueError`` naming the frame, or with ``skip_bad_frames`` is skipped with a warning and
+    counted (``stats.skipped_frames``, ``meta["skipped"]``); a sequence whose tracking never
+    recovers simply ends with what it had. Ctrl-C (SIGINT, in the main thread) stops at the
+    next frame boundary and returns what exists (``meta["interrupted"]``); a second Ctrl-C
+    raises ``KeyboardInterrupt`` at once.
+
+    Args:
+        source: from :func:`open_source`.
+        cfg: the resolved configuration.
+        kernels: the kernel set.
+        progress: show a tqdm progress bar on stderr.
+        system: continue an existing system (default: a new one).
+        skip_bad_frames: skip unreadable frames instead of raising.
+
+    Returns:
+        the system (keyframes, graph, per-frame poses, stats) and ``meta`` (source, prior,
+        seconds, interrupted).
+    """
+    seq = source.sequence
+    if system is None:
+        system = SlamSystem(source.prior, cfg, kernels, source.K)
+    n = len(seq)
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=n, file=sys.stderr, unit="frame", dynamic_ncols=True, leave=False)
+    interrupted = False
+    shape = None
+    skipped: list[dict[str, Any]] = []
+    t0 = time.perf_counter()
+    try:
+        with _sigint_at_frame_boundary() as stop:
+            for i in range(n):
+                if stop.is_set():
+                    interrupted = True
+                    break
+                try:
+                    frame = seq[i]
+                    if shape is None:
+                        shape = frame.shape
+                    elif frame.shape != shape:
+                        raise ValueError(f"size {frame.shape} differs from frame 0's {shape}")
+                except (OSError, ValueError, cv2.error) as exc:
+                    if not skip_bad_frames:
+                        raise ValueError(
+                            f"{source.name}: cannot read frame {i}: {exc} "
+                            "(--skip-bad-frames skips such frames)"
+                        ) from None
+                    _skip(system, skipped, source.name, i, exc)
+                else:
+                    status = system.process(frame)
+                    if bar is not None:
+                        bar.set_postfix(kf=len(system.keyframes), mode=system.mode.name,
+                                        last=status, refresh=False)  # fmt: skip
+                if bar is not None:
+                    bar.update(1)
+    except _HardStop:
+        raise
+    except KeyboardInterrupt:
+        interrupted = True
+    finally:
+        if bar is not None:
+            bar.close()
+    system.close()  # the background backend (if any) finishes its queued keyframes
+    seconds = time.perf_counter() - t0
+    system.mode = Mode.TERMINATED
+    meta = {
+        "source": source.name,
+        "prior": source.prior_name,
+        "seconds": seconds,
+        "interrupted": interrupted,
+        "skipped": skipped,
+    }
+    return system, meta
+
+
+def _skip(
+    system: SlamSystem, skipped: list[dict[str, Any]], name: str, i: int, exc: BaseException
+) -> None:
+    system.stats.skipped_frames += 1
+    skipped.append({"frame": i, "reason": str(exc)})
+    warnings.warn(f"{name}: skipping frame {i}: {exc}", RuntimeWarning, stacklevel=3)
+
+
+class _HardStop(KeyboardInterrupt):
+    """A second Ctrl-C: stop now, write nothing."""
+
+
+@contextlib.contextmanager
+def _sigint_at_frame_boundary() -> Iterator[threading.Event]:
+    """First SIGINT sets the yielded event (checked between frames); a second one raises
+    ``KeyboardInterrupt`` (no output). Outside the main thread the handler cannot be installed."""
+    stop = threading.Event()
+    if threading.current_thread() is not threading.main_thread():
+        yield stop
+        return
+
+    def handler(signum: int, frame: FrameType | None) -> None:
+        if stop.is_set():
+            raise _HardStop
+        stop.set()
+
+    previous = signal.signal(signal.SIGINT, handler)
+    try:
+        yield stop
+    finally:
+        signal.signal(signal.SIGINT, previous)
