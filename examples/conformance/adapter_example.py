@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import other_sim3  # noqa: E402  (found beside this file)
+import other_sim3  # found beside this file
 
 NAME = "other_sim3 via examples/conformance/adapter_example.py"
 

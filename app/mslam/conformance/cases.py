@@ -1,10 +1,11 @@
 """The inputs of the conformance golden set: small, deterministic, edges included.
 
-Every kernel of ``mslam.conformance.kernels.KERNELS`` gets a few cases: a generic one, the edges
-its maths has (identity, rotation angles near 0 and near pi, scale log sigma on both sides of
-the 1e-6 series threshold and at the +-1.5 bound of the test strategies, pixels on the image
-border and outside it, points at zero, behind the camera, NaN/inf, all-invalid masks) and an
-empty batch. Images are 32x24 or smaller, so the whole set is a few hundred KB.
+Every kernel of ``mslam.conformance.kernels.KERNELS`` gets a few cases: a generic one, the
+edges its maths has (identity, rotation angles near 0 and near pi, scale log sigma on both
+sides of the 1e-6 series threshold, at the +-1.5 bound of the test strategies and just below
+the cap |sigma| < 690, float64 only as e^689 overflows float32; pixels on the image border and
+outside it, points at zero, behind the camera, NaN/inf, all-invalid masks) and an empty batch.
+Images are 32x24 or smaller, so the whole set is about 2.6 MB.
 Scenes are written from the maths (a wavy wall seen by nearby cameras, random Fourier-feature
 descriptors), seeded, so export is reproducible.
 
@@ -23,6 +24,7 @@ import numpy as np
 from mslam_ref import backend, fusion, matching, sim3, tracking
 from mslam_ref.ba import cameras, schur, synthetic
 from mslam_ref.ba.robust import RobustKernel
+from mslam_ref.conventions import SIM3_SIGMA_MAX
 from mslam_ref.pointmap import backproject
 
 __all__ = ["Case", "build_cases"]
@@ -33,6 +35,8 @@ K_CAM = np.array([[26.0, 0.0, 15.5], [0.0, 27.0, 11.5], [0.0, 0.0, 1.0]])
 #: threshold, near pi, scale log at the strategies' bound.
 EDGES = ((0.0, 0.0), (0.0, 0.4), (1e-7, 1e-7), (1e-5, 1e-7), (3e-3, 2e-6), (1e-6, -1e-6),
          (np.pi - 1e-9, 0.5), (1.0, 1.5), (2.0, -1.5))  # fmt: skip
+#: Log-scales just below the cap of ``mslam_ref.conventions.SIM3_SIGMA_MAX`` (s up to 1e299).
+SIGMA_CAP = (689.0, -689.0, 600.0)
 _AXIS = np.array([1.0, 2.0, -0.5]) / np.linalg.norm([1.0, 2.0, -0.5])
 
 
@@ -45,6 +49,7 @@ class Case:
     note: str
     inputs: dict[str, np.ndarray]
     params: dict[str, Any] = dataclasses.field(default_factory=dict)
+    precisions: tuple[str, ...] = ("f64", "f32")
 
 
 def _rng(seed: int) -> np.random.Generator:
@@ -69,12 +74,20 @@ def _random_tangents(n: int, seed: int) -> np.ndarray:
 
 
 def _sim3_sets() -> Iterator[tuple[str, str, np.ndarray, np.ndarray, np.ndarray]]:
-    """(name, note, tangents, second tangents, points) for the edge, random and empty cases."""
+    """(name, note, tangents, second tangents, points): edges, sigma cap, random, empty."""
     e = _edge_tangents()
     pts = np.tile([0.7, -0.4, 2.5], (len(e), 1))
     pts[0] = 0.0
     yield "edges", "identity, pure scale, angles 0/1e-7/1e-5/3e-3/pi-1e-9, sigma +-1e-6 and +-1.5", \
         e, e[::-1].copy(), pts  # fmt: skip
+    cap = np.stack([np.r_[0.3, -1.2, 2.0, 0.7 * _AXIS, sg] for sg in SIGMA_CAP])
+    yield (
+        "sigma_cap",
+        f"sigma {SIGMA_CAP} below the cap |sigma| < {SIM3_SIGMA_MAX:g} (f64 only)",
+        cap,
+        cap[::-1] * [1, 1, 1, 1, 1, 1, 1e-3],
+        np.tile([0.7, -0.4, 2.5], (len(cap), 1)),
+    )
     r = _random_tangents(24, 1)
     yield "random", "24 random elements, angles up to pi - 1e-3, points up to 10", \
         r, _random_tangents(24, 2), _rng(3).uniform(-10, 10, (24, 3))  # fmt: skip
@@ -90,8 +103,9 @@ def _sim3_cases() -> Iterator[Case]:
             "adjoint": {"T": T}, "adjoint_inv_apply": {"T": T, "J": xi2},
             "retract": {"T": T, "xi": xi2}, "to_matrix": {"T": T},
         }  # fmt: skip
+        fps = ("f64",) if name == "sigma_cap" else ("f64", "f32")  # e^689 overflows float32
         for fn, ins in args.items():
-            yield Case(f"sim3.{fn}", name, note, ins)
+            yield Case(f"sim3.{fn}", name, note, ins, precisions=fps)
     T = sim3.exp(_random_tangents(6, 4)).reshape(3, 1, 2, 8)
     yield Case("sim3.act", "batch_3x1x2", "leading batch axes (3, 1, 2), broadcast points",
                {"T": T, "X": _rng(5).normal(size=(2, 3))})  # fmt: skip
@@ -197,7 +211,7 @@ def _tracking_cases() -> Iterator[Case]:
 def _fusion_cases() -> Iterator[Case]:
     for shape, tag in (((6, 5), ""), ((0,), "_empty")):
         rng = _rng(0)
-        X = [rng.normal(0, 1, (*shape, 3)) + [0.0, 0.0, 2.0] for _ in range(3)]
+        X = [rng.normal(0, 1, (*shape, 3)) + np.array([0.0, 0.0, 2.0]) for _ in range(3)]
         C = [rng.uniform(1.0, 3.0, shape) for _ in range(3)]
         for mode in fusion.FILTERING_MODES:
             cfg = fusion.FusionConfig(mode)

@@ -110,7 +110,7 @@ def write_golden_set(folder: str | Path) -> dict[str, Any]:
         np.savez(folder / rel, **arrays)  # stored (uncompressed) entries
         total += (folder / rel).stat().st_size
         entries.append({"kernel": case.kernel, "name": case.name, "file": rel,
-                        "note": case.note, "params": case.params,
+                        "note": case.note, "precisions": list(case.precisions), "params": case.params,
                         "arrays": _describe(arrays)})  # fmt: skip
     index = {
         "format": FORMAT,
