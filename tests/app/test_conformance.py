@@ -103,6 +103,26 @@ def test_planted_error_fails_and_names_the_kernel(golden: Path, tmp_path: Path, 
     assert {v[k] for k in KERNELS if k not in ("sim3.act", "sim3.exp")} == {"absent"}
 
 
+@pytest.mark.parametrize(("stride", "verdict"), [(40, "FAIL"), (200, "ok")])
+def test_share_measure_allows_one_percent_of_other_matches(
+    golden: Path, tmp_path: Path, capsys, stride: int, verdict: str
+) -> None:
+    """Every 40th match moved (2.5 % of the pixels) fails; every 200th (0.5 %) passes."""
+    adapter = tmp_path / "shifted.py"
+    adapter.write_text(
+        "from mslam_ref import matching\n"
+        "def match(*args):\n"
+        "    idx, valid = matching.match(*args)\n"
+        "    idx = idx.copy()\n"
+        f"    idx[..., ::{stride}] += 1\n"
+        "    return idx, valid\n"
+        "KERNELS = {'matching.match': match}\n"
+    )
+    rc, out, _ = _check(capsys, str(golden), "--impl", str(adapter))
+    assert _verdicts(out)["matching.match"] == verdict
+    assert rc == (1 if verdict == "FAIL" else 0)
+
+
 def test_example_adapter_over_another_api_passes(golden: Path, capsys) -> None:
     rc, out, _ = _check(capsys, str(golden), "--impl", str(EXAMPLES / "adapter_example.py"))
     assert rc == 0, out

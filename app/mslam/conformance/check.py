@@ -76,12 +76,45 @@ def load_golden_set(folder: str | Path) -> tuple[dict[str, Any], list[tuple[dict
         raise UserError(f"{path}: version {index.get('version')!r}, this mslam reads {VERSION}")
     cases = []
     for entry in index.get("cases", []):
-        if entry.get("kernel") not in KERNELS or entry["kernel"] not in index.get("kernels", {}):
-            raise UserError(f"{path}: unknown kernel {entry.get('kernel')!r}")
+        _check_entry(path, index, entry)
         cases.append((entry, *_load_case(folder, entry)))
     if not cases:
         raise UserError(f"{path}: lists no cases")
     return index, cases
+
+
+#: The tolerance parameters each measure reads.
+_NEEDS = {"allclose": ("rtol", "atol"), "scaled": ("rtol", "atol"), "exact": (),
+          "share_equal": ("share",), "share_close": ("share", "atol")}  # fmt: skip
+
+
+def _valid_tolerance(o: dict[str, Any]) -> bool:
+    """``o`` has a known measure and, per precision, the numbers that measure reads."""
+    need = _NEEDS.get(o.get("measure"))
+    return need is not None and all(
+        isinstance(o.get(fp), dict) and all(isinstance(o[fp].get(k), int | float) for k in need)
+        for fp in PRECISIONS
+    )
+
+
+def _check_entry(path: Path, index: dict[str, Any], entry: Any) -> None:
+    """A case entry names a known kernel whose outputs have a measure and both tolerances."""
+    if not isinstance(entry, dict) or not all(
+        isinstance(entry.get(k), str) for k in ("kernel", "name", "file")
+    ):
+        raise UserError(f"{path}: a case entry lacks 'kernel', 'name' or 'file'")
+    fps = entry.get("precisions", list(PRECISIONS))
+    if not isinstance(fps, list) or not set(fps) <= set(PRECISIONS):
+        raise UserError(f"{path}: case {entry['file']}: 'precisions' must list f64 and/or f32")
+    kernel = entry["kernel"]
+    spec = index.get("kernels", {}).get(kernel) if isinstance(index.get("kernels"), dict) else None
+    if kernel not in KERNELS or not isinstance(spec, dict):
+        raise UserError(f"{path}: unknown kernel {kernel!r}")
+    outputs = spec.get("outputs", {})
+    for name in KERNELS[kernel].outputs:
+        o = outputs.get(name) if isinstance(outputs, dict) else None
+        if not isinstance(o, dict) or not _valid_tolerance(o):
+            raise UserError(f"{path}: kernel {kernel} output {name}: no valid measure/tolerance")
 
 
 def _load_case(folder: Path, entry: dict[str, Any]) -> tuple[dict, dict]:
