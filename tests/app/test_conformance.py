@@ -12,9 +12,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from tolerances import SHARE, TOL
 
 from mslam.cli import main
 from mslam.conformance.kernels import KERNELS
+from mslam.conformance.tolerances import SHARE as CONF_SHARE
+from mslam.conformance.tolerances import TOLERANCES
 
 ROOT = Path(__file__).resolve().parents[2]
 EXAMPLES = ROOT / "examples" / "conformance"
@@ -67,6 +70,15 @@ def test_export_covers_every_kernel_with_edges_stored_uncompressed(golden: Path)
     assert total < MAX_BYTES
     edges = np.load(golden / "sim3.exp" / "edges.npz")
     np.testing.assert_array_equal(edges["out.T"][0, 3:], [0.0, 0.0, 0.0, 1.0, 1.0])
+
+
+def test_tolerances_are_the_parity_tolerances() -> None:
+    """The app's conformance table repeats tests/tolerances.py (the app cannot import tests)."""
+    for group, by_fp in TOLERANCES.items():
+        for fp, (rtol, atol) in by_fp.items():
+            assert TOL[(group, fp)] == {"rtol": rtol, "atol": atol}, (group, fp)
+    # Matching shares: the lowest the parity tests accept on any backend (CUDA f64: 0.99).
+    assert all(CONF_SHARE[fp] <= SHARE[("matching", fp)] for fp in CONF_SHARE)
 
 
 def test_export_refuses_a_non_empty_folder(golden: Path, capsys) -> None:
