@@ -24,7 +24,6 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from mslam.commands import UserError
 from mslam.conformance.kernels import KERNELS
 
 __all__ = ["Implementation", "load_implementation"]
@@ -47,38 +46,38 @@ def load_implementation(impl: str) -> Implementation:
     """Resolve ``--impl``: an adapter file (``*.py``) or an importable package name.
 
     Raises:
-        UserError: a missing or broken adapter file, an unknown kernel name in ``KERNELS``, a
+        ValueError: a missing or broken adapter file, an unknown kernel name in ``KERNELS``, a
             package that cannot be imported, or an implementation with none of the kernels.
     """
     found = _from_adapter(Path(impl)) if impl.endswith(".py") else _from_package(impl)
     if not found.functions:
-        raise UserError(f"--impl {impl}: provides none of the {len(KERNELS)} kernels")
+        raise ValueError(f"--impl {impl}: provides none of the {len(KERNELS)} kernels")
     return found
 
 
 def _from_adapter(path: Path) -> Implementation:
     """Execute the adapter file and read its ``KERNELS`` mapping."""
     if not path.is_file():
-        raise UserError(f"--impl {path}: no such adapter file")
+        raise ValueError(f"--impl {path}: no such adapter file")
     name = f"_mslam_conformance_adapter_{abs(hash(str(path.resolve())))}"
     spec = importlib.util.spec_from_file_location(name, path)
     if spec is None or spec.loader is None:
-        raise UserError(f"--impl {path}: not a Python file")
+        raise ValueError(f"--impl {path}: not a Python file")
     module = importlib.util.module_from_spec(spec)
     sys.modules[name] = module
     try:
         spec.loader.exec_module(module)
     except Exception as exc:  # any error inside the user's file is bad input
-        raise UserError(f"--impl {path}: the adapter failed to load: {exc!r}") from exc
+        raise ValueError(f"--impl {path}: the adapter failed to load: {exc!r}") from exc
     table = getattr(module, "KERNELS", None)
     if not isinstance(table, dict):
-        raise UserError(f"--impl {path}: defines no KERNELS dict (kernel name -> callable)")
+        raise ValueError(f"--impl {path}: defines no KERNELS dict (kernel name -> callable)")
     unknown = sorted(set(table) - set(KERNELS))
     if unknown:
-        raise UserError(f"--impl {path}: unknown kernel names in KERNELS: {', '.join(unknown)}")
+        raise ValueError(f"--impl {path}: unknown kernel names in KERNELS: {', '.join(unknown)}")
     bad = sorted(k for k, f in table.items() if not callable(f))
     if bad:
-        raise UserError(f"--impl {path}: KERNELS entries are not callable: {', '.join(bad)}")
+        raise ValueError(f"--impl {path}: KERNELS entries are not callable: {', '.join(bad)}")
     label = str(getattr(module, "NAME", path.name))
     return Implementation(label, {k: table[k] for k in KERNELS if k in table})
 
@@ -88,7 +87,7 @@ def _from_package(package: str) -> Implementation:
     try:
         importlib.import_module(package)
     except ImportError as exc:
-        raise UserError(f"--impl {package}: cannot import it ({exc})") from exc
+        raise ValueError(f"--impl {package}: cannot import it ({exc})") from exc
     functions = {}
     for name, kernel in KERNELS.items():
         target = f"{package}.{kernel.module}"

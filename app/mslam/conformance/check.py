@@ -1,7 +1,7 @@
 """Check an implementation against a golden set: run every case, compare, one row per kernel.
 
 The golden set is read and validated completely before anything runs (a missing folder, a
-broken ``index.json`` or a corrupt or inconsistent case file is a :class:`UserError`). Each
+broken ``index.json`` or a corrupt or inconsistent case file is a ``ValueError``). Each
 case calls the implementation with the reference's signature
 (``mslam.conformance.kernels.call``) and compares every output with the measure and the
 tolerance the index states for the chosen precision. A kernel passes when every case passes;
@@ -21,7 +21,6 @@ from typing import Any
 
 import numpy as np
 
-from mslam.commands import UserError
 from mslam.conformance.adapter import Implementation
 from mslam.conformance.export import FORMAT, VERSION
 from mslam.conformance.kernels import KERNELS, call
@@ -57,29 +56,29 @@ def load_golden_set(folder: str | Path) -> tuple[dict[str, Any], list[tuple[dict
         (index, [(case entry, inputs, reference outputs)]), arrays without their prefix.
 
     Raises:
-        UserError: a missing folder or index, an index of another format, an unknown kernel,
+        ValueError: a missing folder or index, an index of another format, an unknown kernel,
             or a case file that is missing, corrupt or disagrees with the index.
     """
     folder = Path(folder)
     if not folder.is_dir():
-        raise UserError(f"{folder}: no such golden-set folder")
+        raise ValueError(f"{folder}: no such golden-set folder")
     path = folder / "index.json"
     try:
         index = json.loads(path.read_text())
     except FileNotFoundError:
-        raise UserError(f"{path}: missing (run 'mslam conformance export' first)") from None
+        raise ValueError(f"{path}: missing (run 'mslam conformance export' first)") from None
     except (ValueError, UnicodeDecodeError) as exc:
-        raise UserError(f"{path}: not valid JSON ({exc})") from None
+        raise ValueError(f"{path}: not valid JSON ({exc})") from None
     if not isinstance(index, dict) or index.get("format") != FORMAT:
-        raise UserError(f"{path}: not a {FORMAT} index")
+        raise ValueError(f"{path}: not a {FORMAT} index")
     if index.get("version") != VERSION:
-        raise UserError(f"{path}: version {index.get('version')!r}, this mslam reads {VERSION}")
+        raise ValueError(f"{path}: version {index.get('version')!r}, this mslam reads {VERSION}")
     cases = []
     for entry in index.get("cases", []):
         _check_entry(path, index, entry)
         cases.append((entry, *_load_case(folder, entry)))
     if not cases:
-        raise UserError(f"{path}: lists no cases")
+        raise ValueError(f"{path}: lists no cases")
     return index, cases
 
 
@@ -102,19 +101,19 @@ def _check_entry(path: Path, index: dict[str, Any], entry: Any) -> None:
     if not isinstance(entry, dict) or not all(
         isinstance(entry.get(k), str) for k in ("kernel", "name", "file")
     ):
-        raise UserError(f"{path}: a case entry lacks 'kernel', 'name' or 'file'")
+        raise ValueError(f"{path}: a case entry lacks 'kernel', 'name' or 'file'")
     fps = entry.get("precisions", list(PRECISIONS))
     if not isinstance(fps, list) or not set(fps) <= set(PRECISIONS):
-        raise UserError(f"{path}: case {entry['file']}: 'precisions' must list f64 and/or f32")
+        raise ValueError(f"{path}: case {entry['file']}: 'precisions' must list f64 and/or f32")
     kernel = entry["kernel"]
     spec = index.get("kernels", {}).get(kernel) if isinstance(index.get("kernels"), dict) else None
     if kernel not in KERNELS or not isinstance(spec, dict):
-        raise UserError(f"{path}: unknown kernel {kernel!r}")
+        raise ValueError(f"{path}: unknown kernel {kernel!r}")
     outputs = spec.get("outputs", {})
     for name in KERNELS[kernel].outputs:
         o = outputs.get(name) if isinstance(outputs, dict) else None
         if not isinstance(o, dict) or not _valid_tolerance(o):
-            raise UserError(f"{path}: kernel {kernel} output {name}: no valid measure/tolerance")
+            raise ValueError(f"{path}: kernel {kernel} output {name}: no valid measure/tolerance")
 
 
 def _load_case(folder: Path, entry: dict[str, Any]) -> tuple[dict, dict]:
@@ -124,17 +123,17 @@ def _load_case(folder: Path, entry: dict[str, Any]) -> tuple[dict, dict]:
         with np.load(path, allow_pickle=False) as z:
             arrays = {k: z[k] for k in z.files}
     except FileNotFoundError:
-        raise UserError(f"{path}: case file missing") from None
+        raise ValueError(f"{path}: case file missing") from None
     except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile) as exc:
-        raise UserError(f"{path}: corrupt case file ({exc})") from None
+        raise ValueError(f"{path}: corrupt case file ({exc})") from None
     want = entry.get("arrays", {})
     got = {n: {"shape": list(a.shape), "dtype": a.dtype.str} for n, a in arrays.items()}
     if got != want:
-        raise UserError(f"{path}: entries differ from index.json (names, shapes or dtypes)")
+        raise ValueError(f"{path}: entries differ from index.json (names, shapes or dtypes)")
     ins = {k[3:]: v for k, v in arrays.items() if k.startswith("in.")}
     outs = {k[4:]: v for k, v in arrays.items() if k.startswith("out.")}
     if set(outs) != set(KERNELS[entry["kernel"]].outputs):
-        raise UserError(f"{path}: outputs {sorted(outs)} do not match kernel {entry['kernel']}")
+        raise ValueError(f"{path}: outputs {sorted(outs)} do not match kernel {entry['kernel']}")
     return ins, outs
 
 
