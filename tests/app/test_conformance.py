@@ -23,6 +23,8 @@ ROOT = Path(__file__).resolve().parents[2]
 EXAMPLES = ROOT / "examples" / "conformance"
 #: The golden set is meant to stay small (a few MB) so that tests and downloads stay quick.
 MAX_BYTES = 4_000_000
+#: Kernels of the golden set without a Taichi twin (finer-grained steps for porting).
+REFERENCE_ONLY = {"tracking.ray_dist_residual_and_jacobian"}
 
 
 @pytest.fixture(scope="module")
@@ -96,7 +98,9 @@ def test_reference_passes(golden: Path, capsys) -> None:
 def test_fast_kernels_pass(golden: Path, fast: str, capsys) -> None:
     rc, out, _ = _check(capsys, str(golden), "--impl", "mslam_fast", "--precision", fast)
     assert rc == 0, out
-    assert set(_verdicts(out).values()) == {"ok"} and len(_verdicts(out)) == len(KERNELS)
+    v = _verdicts(out)
+    assert {k for k in v if v[k] == "absent"} == REFERENCE_ONLY
+    assert {k for k in v if v[k] == "ok"} == set(KERNELS) - REFERENCE_ONLY
 
 
 def test_planted_error_fails_and_names_the_kernel(golden: Path, tmp_path: Path, capsys) -> None:

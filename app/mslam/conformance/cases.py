@@ -198,6 +198,11 @@ def _tracking_cases() -> Iterator[Case]:
         yield Case("tracking.linearize", mode, note, dict(base, T_CkCf=P["T1"], **K), cfg)
         yield Case("tracking.solve", mode, note + ", from the identity",
                    dict(base, T_CkCf_init=sim3.identity(), **K), cfg)  # fmt: skip
+    pts = {"T_CkCf": P["T1"], "X_f": P["X_f"].reshape(-1, 3).copy(), "X_k": P["X_k"].reshape(-1, 3)}
+    pts["X_f"][5] = 0.0  # a point at the origin: ray 0, distance 0, zero Jacobian
+    yield Case("tracking.ray_dist_residual_and_jacobian", "ray_dist",
+               "Eq. 6 residual and its 4x7 Jacobian; points behind the camera and at the origin",
+               pts)  # fmt: skip
     none = dict(base, valid=np.zeros(H * W, bool))
     yield Case("tracking.linearize", "all_invalid", "no valid match: H = 0, g = 0, cost 0",
                dict(none, T_CkCf=P["T1"]), cfg)  # fmt: skip
@@ -206,6 +211,8 @@ def _tracking_cases() -> Iterator[Case]:
     empty = {"X_f": np.zeros((0, 3)), "X_k": np.zeros((0, 3)), "Q": np.zeros(0),
              "valid": np.zeros(0, bool), "T_CkCf": sim3.identity()}  # fmt: skip
     yield Case("tracking.linearize", "empty", "N = 0 pixels", empty, cfg)
+    yield Case("tracking.ray_dist_residual_and_jacobian", "empty", "N = 0 points",
+               {k: empty[k] for k in ("T_CkCf", "X_f", "X_k")})  # fmt: skip
 
 
 def _fusion_cases() -> Iterator[Case]:

@@ -143,6 +143,10 @@ _MATCHING = [
 ]  # fmt: skip
 
 _TRACKING = [
+    Kernel("tracking.ray_dist_residual_and_jacobian", "tracking",
+           "ray_dist_residual_and_jacobian(T_CkCf (8,), X_f (N,3), X_k (N,3)) "
+           "-> r (N,4), J (N,4,7)",
+           {"r": "scaled", "J": "scaled"}, _args("T_CkCf", "X_f", "X_k")),
     Kernel("tracking.linearize", "tracking",
            "linearize(T_CkCf (8,), X_f (N,3) or (H,W,3), X_k (like X_f), Q (N,), valid (N,), "
            "cfg, K (3,3) or absent) -> H (7,7), g (7,), cost ()",
