@@ -107,16 +107,22 @@ def test_planted_error_fails_and_names_the_kernel(golden: Path, tmp_path: Path, 
     adapter = tmp_path / "planted.py"
     adapter.write_text(
         "from mslam_ref import sim3\n"
+        "def inv(T):\n"
+        "    raise RuntimeError('no kernel for this device')\n"
         "KERNELS = {\n"
         "    'sim3.act': lambda T, X: sim3.act(T, X) + 1e-3,\n"
         "    'sim3.exp': sim3.exp,\n"
+        "    'sim3.inv': inv,\n"
         "}\n"
     )
     rc, out, _ = _check(capsys, str(golden), "--impl", str(adapter))
     assert rc == 1
     v = _verdicts(out)
-    assert v["sim3.act"] == "FAIL" and v["sim3.exp"] == "ok"
-    assert {v[k] for k in KERNELS if k not in ("sim3.act", "sim3.exp")} == {"absent"}
+    assert v["sim3.act"] == "FAIL" and v["sim3.exp"] == "ok" and v["sim3.inv"] == "FAIL"
+    assert "RuntimeError: no kernel for this device" in out
+    assert {v[k] for k in KERNELS if k not in ("sim3.act", "sim3.exp", "sim3.inv")} == {"absent"}
+    act = next(line for line in out.splitlines() if line.startswith("sim3.act "))
+    assert "1.00e-03" in act  # the planted error is the worst error reported
 
 
 @pytest.mark.parametrize(("stride", "verdict"), [(40, "FAIL"), (200, "ok")])

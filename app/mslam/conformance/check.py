@@ -174,8 +174,9 @@ def _close(g: np.ndarray, w: np.ndarray, measure: str, tol: dict[str, float]):
         ratio = np.where(err == 0, 0.0, err / allowed)
     bad = float(np.max(ratio, initial=0.0))
     s = " max|ref|" if measure == "scaled" else ""
-    return bad, f"{float(np.max(err, initial=0.0)):.2e}", \
-        f"{tol['atol']:g}{s} + {tol['rtol']:g}|ref|"  # fmt: skip
+    lost = int(np.sum(~np.isfinite(g) & np.isfinite(w)))  # NaN/inf where the reference is finite
+    text = f"{lost} non-finite" if lost else f"{float(np.max(err, initial=0.0)):.2e}"
+    return bad, text, f"{tol['atol']:g}{s} + {tol['rtol']:g}|ref|"
 
 
 def _run_case(fn: Any, entry: dict, ins: dict, outs: dict, tols: dict, fp: str):
