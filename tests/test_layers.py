@@ -172,6 +172,7 @@ def test_cycle_finder_finds_a_cycle() -> None:
 APP_LAYERS: tuple[tuple[str, ...], ...] = (
     ("mslam.atomic",),
     ("mslam.formats", "mslam.bal", "mslam.kernels", "mslam.evaluate", "mslam.baselines"),
+    ("mslam.conformance",),
     ("mslam.datasets", "mslam.priors"),
     ("mslam.config", "mslam.config_ranges"),
     ("mslam.system",),

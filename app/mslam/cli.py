@@ -22,7 +22,7 @@ from collections.abc import Sequence
 from mslam import __version__
 
 #: Sub-commands in the order ``mslam --help`` lists them.
-COMMANDS = ("run", "eval", "eval_dataset", "synth", "ba")
+COMMANDS = ("run", "eval", "eval_dataset", "synth", "ba", "conformance")
 
 
 def build_parser() -> argparse.ArgumentParser:

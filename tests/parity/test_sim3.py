@@ -70,6 +70,14 @@ def test_log(fast: str, T: np.ndarray) -> None:
     check(F.log(T), R.log(T), fast)
 
 
+@pytest.mark.parametrize("sigma", [240.0, 600.0, 689.0, -689.0])
+@pytest.mark.parametrize("theta", [0.0, 0.5])
+def test_log_near_the_sigma_cap(fast64: str, sigma: float, theta: float) -> None:
+    # s = e^sigma up to 1e299 (|sigma| < 690): W's determinant (~ C^3) overflows unless scaled.
+    T = R.exp(np.r_[0.3, -1.2, 2.0, theta, 0.0, 0.0, sigma])
+    check(F.log(T), R.log(T), fast64)
+
+
 @fixture_ok
 @given(A=stacked(sim3_elements(), N), B=stacked(sim3_elements(), N))
 def test_mul(fast: str, A: np.ndarray, B: np.ndarray) -> None:

@@ -184,10 +184,12 @@ def sim3_log(T):
     sigma = ti.log(T[7])
     A, B, C = W_coefficients(phi.norm(), sigma)
     Phi = hat(phi)
-    W = A * Phi + B * (Phi @ Phi)
+    # W / C has entries O(1) for every sigma: the cofactor inverse of W itself overflows its
+    # determinant (~ C^3) for sigma >~ 240, where C ~ e^sigma / sigma.
+    W = (A / C) * Phi + (B / C) * (Phi @ Phi)
     for k in ti.static(range(3)):
-        W[k, k] += C
-    tau = W.inverse() @ trans(T)
+        W[k, k] += 1.0
+    tau = W.inverse() @ (trans(T) / C)
     return ti.Vector([tau[0], tau[1], tau[2], phi[0], phi[1], phi[2], sigma])
 
 
