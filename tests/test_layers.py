@@ -171,7 +171,14 @@ def test_cycle_finder_finds_a_cycle() -> None:
 #: from its own layer or below. The package ``mslam`` itself (its lazy public names) is the API.
 APP_LAYERS: tuple[tuple[str, ...], ...] = (
     ("mslam.atomic",),
-    ("mslam.formats", "mslam.bal", "mslam.kernels", "mslam.evaluate", "mslam.baselines"),
+    (
+        "mslam.formats",
+        "mslam.bal",
+        "mslam.kernels",
+        "mslam.evaluate",
+        "mslam.baselines",
+        "mslam.device",
+    ),
     ("mslam.conformance",),
     ("mslam.datasets", "mslam.priors"),
     ("mslam.config", "mslam.config_ranges"),

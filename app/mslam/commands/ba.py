@@ -36,6 +36,8 @@ def register(subparsers: Any) -> None:
     )
     p.add_argument("problem", type=Path, help="BAL problem file (problem-*.txt)")
     p.add_argument("--kernels", choices=("ref", "fast"), default="ref")
+    p.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
+                   help="where the fast kernels run; cuda needs an NVIDIA GPU (default: cpu)")  # fmt: skip
     p.add_argument("--iterations", type=int, default=50, help="LM iteration cap (default 50)")
     p.add_argument("--out", type=Path, default=None, help="write the optimised problem (BAL file)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
@@ -62,10 +64,12 @@ def _kernel_set(name: str) -> Any:
 def run(args: argparse.Namespace) -> int:
     """Load, solve, report (and optionally write)."""
     from mslam import bal as io
+    from mslam.device import use_device
     from mslam_ref.ba import lm
 
     if args.iterations < 0:
         raise UserError(f"--iterations must be >= 0, got {args.iterations}")
+    use_device(args.device, args.kernels)
     if not args.problem.is_file():
         raise FileNotFoundError(f"{args.problem}: no such file")
     if args.out is not None:
@@ -93,6 +97,7 @@ def run(args: argparse.Namespace) -> int:
             "points": len(problem.points),
             "observations": len(problem.obs),
             "kernels": args.kernels,
+            "device": args.device,
             "initial_cost": res.initial_cost,
             "final_cost": res.final_cost,
             "iterations": res.iterations,

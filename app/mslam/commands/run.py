@@ -2,7 +2,8 @@
 
 ::
 
-    mslam run [SOURCE] --out DIR [--config FILE] [--kernels ref|fast] [--calib FILE]
+    mslam run [SOURCE] --out DIR [--config FILE] [--kernels ref|fast] [--device cpu|cuda]
+              [--calib FILE]
               [--prior synthetic|rgbd|mast3r|twoview] [--set SECTION.KEY=VALUE ...]
               [--max-frames N] [--baseline] [--quiet]
 
@@ -62,6 +63,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         choices=("f64", "f32"),
         default="f64",
         help="float type of the fast kernels (f32: matching ~1.5x faster; default: f64)",
+    )
+    p.add_argument(
+        "--device",
+        choices=("cpu", "cuda"),
+        default="cpu",
+        help="where the fast kernels (Taichi) and the MASt3R network (torch) run; cuda needs an "
+        "NVIDIA GPU and is refused without one (default: cpu)",
     )
     p.add_argument(
         "--calib",
@@ -127,12 +135,16 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--out {out}: contains SOURCE {args.source}; choose another folder")
     if args.max_frames is not None and args.max_frames < 1:
         raise UserError(f"--max-frames: must be >= 1, got {args.max_frames}")
-    cfg = load_config(args.config, args.overrides)
+    from mslam.device import use_device
+
+    use_device(args.device, args.kernels, args.precision)  # before any work: no fallback
+    overrides = [*args.overrides, f"local_opt.use_cuda={str(args.device == 'cuda').lower()}"]
+    cfg = load_config(args.config, overrides)
     source = open_source(args.source, cfg, args.calib, args.prior, args.max_frames)
     if args.config is None and source.prior_name in ("rgbd", "twoview"):
         # The RGB-D prior's packaged default (configs/rgbd.yaml, docs/system.md): its working
         # resolution and two tracking keys differ from base.yaml, so open the source again.
-        cfg = load_config(source.prior_name, args.overrides)
+        cfg = load_config(source.prior_name, overrides)
         source = open_source(args.source, cfg, args.calib, args.prior, args.max_frames)
     _check_resolution(source, cfg)
     if args.calib is not None and not cfg.use_calib:
@@ -140,10 +152,6 @@ def run(args: argparse.Namespace) -> int:
 
         cfg = replace(cfg, use_calib=True)  # upstream: --calib forces use_calib
     kernels = load_kernels(args.kernels)
-    if args.kernels == "fast":
-        import mslam_fast
-
-        mslam_fast.init("cpu", args.precision)
     if args.baseline and not source.sequence.has_depth:
         raise UserError(f"--baseline: {source.name} has no depth images (the RGB-D odometry "
                         "baseline needs them)")  # fmt: skip
@@ -155,6 +163,7 @@ def run(args: argparse.Namespace) -> int:
 
         meta["baseline"] = rgbd_odometry_ate(source.sequence)
     meta["config"] = config_to_dict(cfg)
+    meta["device"] = args.device
     with staged_folder(out, args.overwrite) as tmp:
         summary = write_outputs(tmp, system, source.sequence, meta)
     if not args.quiet:

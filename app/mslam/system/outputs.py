@@ -150,6 +150,7 @@ def summary_dict(system: SlamSystem, meta: dict[str, Any], ev: dict[str, Any]) -
         "stage_seconds": {k: round(v, 4) for k, v in sorted(st.seconds.items())},
         "kernels": system.kernels.name,
         "prior": meta.get("prior"),
+        "device": meta.get("device", "cpu"),
         "calibrated": system.K is not None,
         "resolution": list(system.keyframes[0].shape[::-1]) if len(system.keyframes) else None,
         "interrupted": bool(meta.get("interrupted", False)),
