@@ -19,6 +19,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from tolerances import F64_IDENTITY
 
 from mslam.cli import main
 from mslam.config import load_config
@@ -187,7 +188,7 @@ def test_7scenes_stamps_are_the_frame_numbers(shared_data, tmp_path) -> None:
             (clip / f"frame-{400 + k:06d}.{kind}").symlink_to(src / f"frame-{k:06d}.{kind}")
     (clip / "camera-intrinsics.txt").symlink_to(src / "camera-intrinsics.txt")
     seq = load_sequence(clip)
-    np.testing.assert_allclose(seq.timestamps, (400 + np.arange(5)) / 30.0, atol=1e-12)
+    np.testing.assert_allclose(seq.timestamps, (400 + np.arange(5)) / 30.0, atol=F64_IDENTITY)
     gt_ts = (400 + np.arange(5)) / 30.0  # how a 7-Scenes ground-truth file of the clip is stamped
     est_i, gt_i = evaluate.associate(seq.timestamps, gt_ts)
     assert len(est_i) == 5 and np.array_equal(est_i, gt_i)
