@@ -1,7 +1,7 @@
 """ATE (evo-compatible association + Umeyama) and reconstruction metrics (mslam.evaluate).
 
-The evo rows are the reference numbers of ../shared/data/traj/SOURCES.md (evo 1.38.1), rounded
-there to 6 decimals; every one is reproduced to 1e-6.
+The evo rows are the reference numbers of the data folder's traj/SOURCES.md (evo 1.38.1),
+rounded there to 6 decimals; every one is reproduced to 1e-6.
 """
 
 from __future__ import annotations

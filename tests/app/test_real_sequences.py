@@ -1,7 +1,7 @@
-"""Issue 14: tracking that holds, relocalisation that recovers, honest run reports.
+"""Tracking that holds, relocalisation that recovers, honest run reports.
 
 * the RGB-D prior on our own synthetic TUM-layout folder (``mslam synth`` then ``mslam run``)
-  poses >= 95 % of the frames with an ATE <= 1 % of the path (it used to lose frame 21 for good);
+  poses >= 95 % of the frames with an ATE <= 1 % of the path;
 * ``synthetic:jump`` (a kidnap to a mapped place) relocalises within 5 frames of the jump and
   poses >= 90 % of the frames, with the synthetic prior and with the RGB-D prior on a
   ``mslam synth jump`` folder; on ``synthetic:detour`` (whose detour sees nothing mapped) the

@@ -1,4 +1,4 @@
-"""What keeps the RGB-D prior cheap at 512x384 (issue 17), and that it computes what it says.
+"""What keeps the RGB-D prior cheap at 512x384, and that it computes what it says.
 
 * separable patch descriptors: a block-structured, rank-1-per-filter, zero-sum projection,
   still unit, smooth, discriminative and invariant to brightness and contrast;

@@ -1,4 +1,4 @@
-"""What keeps a run's cost from growing with the resolution and the map (issue 17).
+"""What keeps a run's cost from growing with the resolution and the map.
 
 * patch descriptors built a few rows at a time equal the one-matrix formula;
 * ICP and the backend use a regular pixel grid whose size does not grow with the image;

@@ -1,4 +1,4 @@
-"""Issue 13, library guards: the reference and the fast twin refuse the same bad inputs with the
+"""Library guards: the reference and the fast twin refuse the same bad inputs with the
 same message (boolean or empty arrays, Sim(3) tangents whose scale overflows, BA points at a
 camera centre) and convert integer pointmaps identically."""
 

@@ -41,7 +41,7 @@ __all__ = ["PATHS", "camera_path", "detour_indices", "jump_indices", "look_at"]
 PATHS = ("loop", "jump", "detour", "rotation", "forward")
 
 #: Seed stream of each path's random variations. ``detour`` shares ``jump``'s, so both start with
-#: the same arc (and ``detour`` is frame for frame what ``jump`` was before it became a kidnap).
+#: the same arc.
 _SEED_KEY = {"loop": 0, "jump": 1, "detour": 1, "rotation": 2, "forward": 3}
 
 
