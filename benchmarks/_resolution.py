@@ -33,13 +33,13 @@ RUNS = (
 
 
 def run_profile(
-    long_side: int, kernels: str, extra: list[str], frames: int | None, config: str
+    long_side: int, kernels: str, extra: list[str], frames: int | None, config: str, data: Path
 ) -> dict:
     """One ``profile_system.py`` run in a fresh process; returns its JSON figures."""
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "r.json"
         cmd = [sys.executable, str(HERE / "profile_system.py"), "--long-side", str(long_side)]
-        cmd += ["--config", config]
+        cmd += ["--config", config, "--data", str(data)]
         cmd += ["--kernels", kernels, *extra, "--json", str(out)]
         if frames:
             cmd += ["--frames", str(frames)]
@@ -91,14 +91,17 @@ def prior_step_table(runs: list[tuple[str, dict]]) -> str:
     return table(["prior sub-step [ms/frame]"] + [label for label, _ in runs], rows)
 
 
-def resolution_bench(long_side: int, frames: int | None, ref_frames: int, config: str) -> str:
-    """Run :data:`RUNS` at ``long_side`` with ``config``; returns the Markdown for RESULTS.md."""
+def resolution_bench(
+    long_side: int, frames: int | None, ref_frames: int, config: str, data: Path
+) -> str:
+    """Run :data:`RUNS` at ``long_side`` with ``config`` on the 7-Scenes clip of the data folder
+    ``data``; returns the Markdown for RESULTS.md."""
     runs = []
     for label, kernels, extra in RUNS:
         n = ref_frames if kernels == "ref" else frames
         if kernels == "ref" and ref_frames <= 0:
             continue
-        r = run_profile(long_side, kernels, extra, n, config)
+        r = run_profile(long_side, kernels, extra, n, config, data)
         runs.append((label if n is None else f"{label} (first {n} frames)", r))
         print(label, {k: r[k] for k in ("frames", "posed", "seconds", "ate_m", "rss_mib")})
     size = runs[0][1]["size"]

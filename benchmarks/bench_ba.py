@@ -34,13 +34,13 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT / "reference"), str(ROOT / "fast"), str(ROOT / "benchmarks")]
 
+from _data import BAL_LADYBUG_49, data_dir  # noqa: E402
 from _results import table, write_section  # noqa: E402
 
 from mslam import bal as io  # noqa: E402
 from mslam_ref.ba import cameras, lm, synthetic  # noqa: E402
 
-DATA = ROOT.parent / "shared" / "data" / "ba" / "problem-49-7776-pre.txt"
-CERES_NATIVE = "0.7-1.1 s, 32 it., 13344.32 (native Ceres SPARSE_SCHUR, measured by the lead)"
+CERES_NATIVE = "0.7-1.1 s, 32 it., 13344.32 (native Ceres SPARSE_SCHUR, measured separately)"
 
 
 def _timed(fn, repeat: int):
@@ -160,7 +160,11 @@ def main() -> None:
     ap.add_argument("--no-scipy", action="store_true")
     ap.add_argument("--no-pyceres", action="store_true")
     ap.add_argument("--arch", choices=["cpu", "cuda"], default="cpu", help="Taichi backend")
-    ap.add_argument("--data", default=str(DATA), help="the BAL file (default: shared data)")
+    ap.add_argument(
+        "--data",
+        default=str(data_dir() / BAL_LADYBUG_49),
+        help="the BAL file (default: Ladybug-49 in $MSLAM_DATA, else the shared data folder)",
+    )
     args = ap.parse_args()
     problem = io.read_bal(args.data)
     import mslam_fast

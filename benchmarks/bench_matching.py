@@ -189,7 +189,7 @@ def main() -> None:
     where = "this 2-core CPU" if args.arch == "cpu" else f"CUDA ({gpu_name()})"
     body += (
         f"\n\nFast kernels on {where}; the reference and the k-d tree on the CPU. "
-        "Goal (issue 4): fast full matching at 512x384 within 60 ms and at least 30x faster "
+        "Goal: fast full matching at 512x384 within 60 ms and at least 30x faster "
         "than the reference on the 2-core CPU; 2 ms on a GPU. " + " ".join(notes) + "\n\n"
         "Paper Table 4 (RTX 4090): 2 ms per pair for iterative projection + refinement "
         "(0.5 ms without refinement), 40 ms for a k-d tree, 2 s for MASt3R's own matching. "

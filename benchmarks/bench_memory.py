@@ -77,7 +77,7 @@ def main() -> None:
         "which are bounded in bytes (`DescriptorConfig.cache_bytes`).\n"
     )
     print(text)
-    write_section("memory", "Memory per keyframe (issue 13)", text)
+    write_section("memory", "Memory per keyframe", text)
 
 
 if __name__ == "__main__":

@@ -1,4 +1,4 @@
-"""Acceptance runs of the whole system (issue 6): accuracy, loop closure, relocalisation, speed.
+"""Acceptance runs of the whole system: accuracy, loop closure, relocalisation, speed.
 
 Runs (each a single pass; a run takes seconds to minutes, so times are single runs with the
 Taichi kernels compiled beforehand by a warm-up run):
@@ -8,12 +8,13 @@ Taichi kernels compiled beforehand by a warm-up run):
 2. synthetic ``jump`` (the kidnapped camera: relocalisation within 5 frames of the jump, >= 90 %
    of frames posed) and ``detour`` (20 unmapped frames; relocalisation at the return frame):
    relocalisations (>= 1), lost frames and ATE / path (< 2%);
-3. 7-Scenes redkitchen frames 0-149 (../shared/data/seq), RGB-D prior with the packaged
+3. the 7-Scenes clip (redkitchen frames 0-149, ``--data``), RGB-D prior with the packaged
    ``rgbd`` config, uncalibrated and calibrated, beside OpenCV's frame-to-frame RGB-D odometry
    on the same frames.
 
-Usage: ``python benchmarks/bench_system.py [--quick] [--no-ref]`` (``--quick``: smaller runs,
-for a smoke test; the RESULTS.md section is only written by a full run).
+Usage: ``python benchmarks/bench_system.py [--quick] [--no-ref] [--data DIR]`` (``--quick``:
+smaller runs, for a smoke test; the RESULTS.md section is only written by a full run; ``--data``:
+the data folder, default ``$MSLAM_DATA``, see ``_data.py``).
 
 ``python benchmarks/bench_system.py --resolution 512 [--frames N] [--ref-frames 20]`` instead
 profiles 7-Scenes at that working resolution for the fast kernels (float64, float32, with the
@@ -30,6 +31,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+from _data import add_data_argument, data_dir, seven_scenes
 from _results import table, write_section
 
 from mslam.config import load_config
@@ -37,10 +39,6 @@ from mslam.datasets.synthetic import DEFAULT_SYNTHETIC
 from mslam.kernels import load_kernels
 from mslam.system import open_source, run_slam
 from mslam.system.outputs import evaluate_run
-
-SEVEN_SCENES = (
-    Path(__file__).resolve().parents[2] / "shared/data/seq/7scenes_redkitchen_f000000-000149"
-)
 
 
 def one_run(source, kernels, overrides=(), config=None, calib=None, baseline=False):
@@ -121,17 +119,19 @@ def main() -> None:
     ap.add_argument(
         "--ref-frames", type=int, default=20, help="with --resolution: frames for the ref kernels"
     )
+    add_data_argument(ap)
     args = ap.parse_args()
+    clip = seven_scenes(args.data)
     if args.resolution:
         from _resolution import resolution_bench
 
         default = "rgbd_512" if args.resolution >= 400 else "rgbd_256"
         config = args.config or (default if args.resolution >= 200 else "rgbd")
         n_ref = 0 if args.no_ref else args.ref_frames
-        text = resolution_bench(args.resolution, args.frames, n_ref, config)
+        text = resolution_bench(args.resolution, args.frames, n_ref, config, data_dir(args.data))
         print(text)
         if not args.frames:
-            title = f"Whole system at {args.resolution} px long side (issue 17)"
+            title = f"Whole system at {args.resolution} px long side"
             write_section(f"system-{args.resolution}", title, text)
         return
     import mslam_fast
@@ -151,12 +151,12 @@ def main() -> None:
         rows.append(one_run(f"synthetic:{path}:{size}", "fast"))
         print(rows[-1], flush=True)
     real = []
-    if SEVEN_SCENES.is_dir():
+    if clip.is_dir():
         ov = ["dataset.long_side=" + ("96" if args.quick else "160")]
         if args.quick:
             ov.append("dataset.subsample=3")
-        for calib in (None, str(SEVEN_SCENES / "calib.yaml")):
-            r = one_run(str(SEVEN_SCENES), "fast", ov, config="rgbd", calib=calib, baseline=True)
+        for calib in (None, str(clip / "calib.yaml")):
+            r = one_run(str(clip), "fast", ov, config="rgbd", calib=calib, baseline=True)
             real.append(r)
             print({k: v for k, v in r.items() if k != "stages"}, flush=True)
 

@@ -1,8 +1,8 @@
-"""RGB-only runs with the two-view prior (issue 15), beside the RGB-D prior and OpenCV odometry.
+"""RGB-only runs with the two-view prior, beside the RGB-D prior and OpenCV odometry.
 
 Runs (single passes, fast kernels, Taichi compiled by a warm-up run first):
 
-1. 7-Scenes redkitchen frames 0-149 (../shared/data/seq), RGB only (`--prior twoview`, its
+1. the 7-Scenes clip (redkitchen frames 0-149, ``--data``), RGB only (`--prior twoview`, its
    packaged config: 160x120), uncalibrated (60° focal guess inside the prior) and calibrated
    (`--calib calib.yaml`); the RGB-D prior (`--config rgbd`) and OpenCV's frame-to-frame RGB-D
    odometry on the same frames for comparison;
@@ -13,7 +13,7 @@ For every run: frames with a pose, Sim(3)-aligned ATE, loop-closure edges, and t
 the keyframes' pointmap scale against ground-truth depth (std of log(s_k · median z_k /
 median z_gt)) with the keyframe poses from tracking alone and after the backend.
 
-Usage: ``python benchmarks/bench_twoview.py [--loop-frames N]`` (writes the section
+Usage: ``python benchmarks/bench_twoview.py [--loop-frames N] [--data DIR]`` (writes the section
 "twoview" of RESULTS.md).
 """
 
@@ -30,8 +30,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+from _data import add_data_argument, seven_scenes
 from _results import table, write_section
-from bench_system import SEVEN_SCENES, baseline_figures
+from bench_system import baseline_figures
 
 from mslam import evaluate
 from mslam.config import load_config
@@ -109,20 +110,22 @@ def body_row(name: str, r: dict) -> list:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--loop-frames", type=int, default=240, help="frames of the rendered loop")
+    add_data_argument(ap)
     args = ap.parse_args()
+    clip = seven_scenes(args.data)
     import mslam_fast
 
     mslam_fast.init("cpu", "f64")
     one_run("synthetic:loop:8:64x48", "synthetic")  # warm-up: compile the Taichi kernels
     rows = []
-    if SEVEN_SCENES.is_dir():
-        calib = str(SEVEN_SCENES / "calib.yaml")
+    if clip.is_dir():
+        calib = str(clip / "calib.yaml")
         for name, prior, cal in (
             ("7-Scenes, twoview, uncalibrated", "twoview", None),
             ("7-Scenes, twoview, calibrated", "twoview", calib),
             ("7-Scenes, RGB-D prior, uncalibrated", "rgbd", None),
         ):
-            rows.append((name, one_run(str(SEVEN_SCENES), prior, cal, baseline=prior == "rgbd")))
+            rows.append((name, one_run(str(clip), prior, cal, baseline=prior == "rgbd")))
             print(name, {k: v for k, v in rows[-1][1].items()}, flush=True)
     with tempfile.TemporaryDirectory() as tmp:
         from mslam.datasets.synthetic import make_sequence
@@ -154,7 +157,7 @@ def main() -> None:
         "parallax to both last keyframes are posed by the pair's rotation with zero "
         'translation (docs/priors.md, "Two-view prior").'
     )
-    write_section("twoview", "Two-view prior, RGB only (issue 15)", text)
+    write_section("twoview", "Two-view prior, RGB only", text)
 
 
 if __name__ == "__main__":

@@ -1,7 +1,7 @@
 """Where the time of a real run goes: frames per second, the stage table, frame time over the
-sequence, peak memory (issue 17's instrument).
+sequence, peak memory.
 
-Runs 7-Scenes redkitchen frames 0-149 (``../shared/data/seq``) with the RGB-D prior and the
+Runs the 7-Scenes clip (redkitchen frames 0-149, ``--data``) with the RGB-D prior and the
 chosen kernel set at a working resolution (``dataset.long_side``), frame by frame, and reports:
 
 * frames per second over the run, and the share of each stage (the system's own timers:
@@ -10,7 +10,7 @@ chosen kernel set at a working resolution (``dataset.long_side``), frame by fram
 * the peak resident memory of the process.
 
 Usage: ``python benchmarks/profile_system.py --long-side 512 [--frames 40] [--kernels fast]
-[--precision f32] [--set KEY=VALUE] [--json OUT]``; writes the section
+[--precision f32] [--set KEY=VALUE] [--json OUT] [--data DIR]``; writes the section
 ``profile-<long_side>-<frames>-<kernels>`` of RESULTS.md (or the figures as JSON to OUT, which
 is how ``bench_system.py --resolution`` runs one profile per process).
 """
@@ -26,6 +26,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+from _data import add_data_argument, seven_scenes
 from _results import table, write_section
 
 from mslam.config import load_config
@@ -34,17 +35,18 @@ from mslam.system import open_source
 from mslam.system.frontend import SlamSystem
 from mslam.system.outputs import evaluate_run
 
-SEVEN_SCENES = (
-    Path(__file__).resolve().parents[2] / "shared/data/seq/7scenes_redkitchen_f000000-000149"
-)
-
 
 def profile(
-    long_side: int, frames: int | None, kernels: str, overrides=(), config: str = "rgbd"
+    long_side: int,
+    frames: int | None,
+    kernels: str,
+    overrides=(),
+    config: str = "rgbd",
+    clip: Path | None = None,
 ) -> dict:
     """One run, frame by frame; returns FPS, stage seconds, frame times, ATE and peak RSS."""
     cfg = load_config(config, [f"dataset.long_side={long_side}", *overrides])
-    src = open_source(str(SEVEN_SCENES), cfg, max_frames=frames)
+    src = open_source(str(clip or seven_scenes()), cfg, max_frames=frames)
     system = SlamSystem(src.prior, cfg, load_kernels(kernels), src.K)
     times, statuses = [], []
     for i in range(len(src.sequence)):
@@ -117,16 +119,18 @@ def main() -> None:
     ap.add_argument("--config", default="rgbd", help="config file or packaged name (rgbd_512)")
     ap.add_argument("--set", action="append", default=[], help="config override KEY=VALUE")
     ap.add_argument("--json", type=Path, help="write the figures here instead of RESULTS.md")
+    add_data_argument(ap)
     args = ap.parse_args()
-    if not SEVEN_SCENES.is_dir():
-        sys.exit(f"profile_system: shared data not found at {SEVEN_SCENES}")
+    clip = seven_scenes(args.data)
+    if not clip.is_dir():
+        sys.exit(f"profile_system: the 7-Scenes clip is not at {clip} (set --data or MSLAM_DATA)")
     if args.kernels == "fast":
         import mslam_fast
 
         mslam_fast.init("cpu", args.precision)
         # Compile the kernels first, with the run's settings (some are compile-time constants).
-        profile(64, 6, "fast", args.set, args.config)
-    r = profile(args.long_side, args.frames, args.kernels, args.set, args.config)
+        profile(64, 6, "fast", args.set, args.config, clip)
+    r = profile(args.long_side, args.frames, args.kernels, args.set, args.config, clip)
     if args.json is not None:
         args.json.write_text(json.dumps(r))
         return
@@ -140,7 +144,7 @@ def main() -> None:
     text = report(r, command)
     print(text)
     name = f"profile-{args.long_side}-{args.frames or 'all'}-{args.kernels}{prec.split()[-1] if prec else ''}"
-    write_section(name, f"Stage profile, {r['size']}, {args.kernels} kernels (issue 17)", text)
+    write_section(name, f"Stage profile, {r['size']}, {args.kernels} kernels", text)
 
 
 if __name__ == "__main__":

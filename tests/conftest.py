@@ -9,6 +9,10 @@
 * ``MSLAM_FAST_ARCH`` (``cpu`` by default, or ``cuda``) is the Taichi backend of those two
   fixtures: ``MSLAM_FAST_ARCH=cuda pytest tests/parity`` runs the parity suite on a GPU. With
   ``cuda`` and no GPU the fixtures raise (``mslam_fast.init`` never falls back to the CPU).
+* ``MSLAM_DATA`` is the data folder (the 7-Scenes clip in ``seq/``, BAL problems in ``ba/``,
+  trajectory pairs in ``traj/``) of the ``shared_data`` fixture and of the tutorials the tests
+  run; by default the ``shared/data`` folder beside the checkout. Tests that need it skip
+  without it.
 """
 
 from __future__ import annotations
@@ -39,15 +43,20 @@ settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 #: Taichi backend of the ``fast`` and ``fast64`` fixtures.
 FAST_ARCH = os.environ.get("MSLAM_FAST_ARCH", "cpu")
 
-#: The shared data folder beside the checkout (real sequences, BA problems, trajectories).
-SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+#: The data folder (real sequences, BA problems, trajectories): ``$MSLAM_DATA``, by default the
+#: ``shared/data`` folder beside the checkout. Exported so the tutorials the tests run see it too.
+SHARED_DATA = Path(
+    os.environ.setdefault(
+        "MSLAM_DATA", str(Path(__file__).resolve().parents[1].parent / "shared" / "data")
+    )
+)
 
 
 @pytest.fixture(scope="session")
 def shared_data() -> Path:
-    """Path of ../shared/data; the test is skipped when it is absent."""
+    """The data folder (``MSLAM_DATA``); the test is skipped when it is absent."""
     if not SHARED_DATA.is_dir():
-        pytest.skip(f"shared data not found at {SHARED_DATA}")
+        pytest.skip(f"data folder not found at {SHARED_DATA} (set MSLAM_DATA)")
     return SHARED_DATA
 
 

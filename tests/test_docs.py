@@ -1,6 +1,6 @@
 """docs/paper_map.md stays true: every function, test file and tutorial it names exists, every
-tutorial it names for a row calls one of that row's functions, and no page cites files outside
-the repository."""
+tutorial it names for a row calls one of that row's functions, no page cites files outside
+the repository, and no text file of the repository tells the history of its making."""
 
 from __future__ import annotations
 
@@ -129,3 +129,100 @@ def test_reliability_page_names_existing_tests() -> None:
         if not (ROOT / path).exists():
             missing.append(path)
     assert not missing, f"docs/reliability.md names missing tests: {missing}"
+
+
+#: Text files of the repository that are scanned for history and outside references.
+SCANNED_FOLDERS = (
+    ".ci",
+    "app",
+    "benchmarks",
+    "docs",
+    "fast",
+    "reference",
+    "tests",
+    "tools",
+    "tutorials",
+)
+SCANNED_TOP = ("README.md", "DEV_NOTES.md", "pyproject.toml", "mkdocs.yml")
+SCANNED_SUFFIXES = {".py", ".md", ".yaml", ".yml", ".toml", ".sh", ".js", ".txt", ".cfg", ""}
+SKIPPED_PARTS = {".venv", "build", "site", "__pycache__", ".pytest_cache", ".hypothesis"}
+#: History of the work: ticket numbers, sessions, rounds and stops (the character classes keep
+#: these patterns from matching themselves).
+HISTORY = re.compile(
+    r"\b(?:issue|ticke[t])\s*#?\d+"
+    r"|\bsession(?:s|'s)?\b"
+    r"|\bsto[p]\s+\d+"
+    r"|\b(?:this|that|last|previous|next|earlier|first|second|third|fourth|fifth)\s+roun[d]\b",
+    re.IGNORECASE,
+)
+#: pytest's fixture scope is a name, not history.
+PYTEST_SCOPE = re.compile(r'scope="session"|session-scoped')
+#: Paths and documents outside the repository.
+OUTSIDE = re.compile(
+    r"\.\./share[d]|\bspe[c]\s*§|shared/(?:spe[c]|desig[n])\b|HOUSE_STYL[E]|/wor[k]/"
+)
+
+
+#: The one file allowed to hold the patterns and their examples: this one.
+ALLOWED = {Path(__file__).resolve()}
+
+
+def _scanned_files() -> list[Path]:
+    files = [ROOT / name for name in SCANNED_TOP]
+    for folder in SCANNED_FOLDERS:
+        for path in sorted((ROOT / folder).rglob("*")):
+            rel = path.relative_to(ROOT)
+            if (
+                path.resolve() not in ALLOWED
+                and path.is_file()
+                and path.suffix in SCANNED_SUFFIXES
+                and not SKIPPED_PARTS & set(rel.parts)
+            ):
+                files.append(path)
+    return files
+
+
+def _hits(pattern: re.Pattern[str]) -> list[str]:
+    hits = []
+    for path in _scanned_files():
+        try:
+            text = path.read_text()
+        except UnicodeDecodeError:
+            continue
+        for k, line in enumerate(text.splitlines(), 1):
+            match = pattern.search(PYTEST_SCOPE.sub("", line))
+            if match:
+                hits.append(f"{path.relative_to(ROOT)}:{k}: {match.group(0)}")
+    return hits
+
+
+def test_scanner_patterns() -> None:
+    """The patterns catch what they are for and leave the words they must not take."""
+    for text in (
+        "see issue 17",
+        "Issue #4",
+        "the third session",
+        "sessions",
+        "stop 3",
+        "this round",
+    ):
+        assert HISTORY.search(text), text
+    for text in ("round(x)", "round trip", "upstream's issues #84", "a non-stop loop"):
+        assert not HISTORY.search(text), text
+    assert not HISTORY.search(PYTEST_SCOPE.sub("", '@pytest.fixture(scope="session")'))
+    for text in ("../shared/data", "spec §3", "shared/design/x.md"):
+        assert OUTSIDE.search(text), text
+    assert len(_scanned_files()) > 150
+
+
+def test_no_history_in_the_tree() -> None:
+    """Code, tests, docs, benchmarks and tutorials state properties and dated measurements:
+    no ticket numbers, no sessions, rounds or stops of the work."""
+    hits = _hits(HISTORY)
+    assert not hits, "history in the tree:\n" + "\n".join(hits)
+
+
+def test_nothing_points_outside_the_repository() -> None:
+    """No path or document outside the checkout: real data comes from ``MSLAM_DATA``."""
+    hits = _hits(OUTSIDE)
+    assert not hits, "references outside the repository:\n" + "\n".join(hits)

@@ -1,4 +1,4 @@
-"""Issue 13: every hypothesis property (parity ones above all) runs >= 50 examples under the
+"""Every hypothesis property (parity ones above all) runs >= 50 examples under the
 ``ci`` profile; no ``@settings(max_examples=...)`` may lower it."""
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 
 Marked ``docs``: skipped when the site packages (the ``docs`` extra, part of ``dev``) are absent;
 CI installs ``dev`` and runs it. The tutorials are executed through tools/mkdocs_hooks.py's
-cache, which tests/test_notebooks.py fills earlier in the same session, so the build itself
+cache, which tests/test_notebooks.py fills earlier in the same pytest run, so the build itself
 mostly renders.
 """
 

@@ -59,3 +59,74 @@ if os.environ.get("MSLAM_FAST_ARCH", "cpu") == "cuda":
 def tol(module: str, fp: str) -> dict[str, float]:
     """``rtol``/``atol`` keyword arguments for ``np.testing.assert_allclose``."""
     return TOL[(module, fp)]
+
+
+# --- Reference maths and the application, in float64 -------------------------------------------
+# Identities that hold exactly in real arithmetic, bounded by how much float64 round-off the two
+# sides accumulate (values of order 1 unless a test scales the bound).
+#: a value passed through unchanged up to one rounding (identity element, copies, file round trips)
+F64_COPY = 1e-15
+#: a few roundings of O(1) values (unit norms, quaternion products, a closed form against NumPy)
+F64_ULPS = 1e-14
+#: a short chain of operations on points up to ~10 (a pose applied in two equivalent ways)
+F64_SHORT_CHAIN = 1e-13
+#: an identity of O(1) values evaluated two ways (group axioms, matrix forms, constructed geometry)
+F64_IDENTITY = 1e-12
+#: the same for points up to ~10 moved through two compositions
+F64_IDENTITY_POINTS = 1e-11
+#: closed forms against SciPy's expm or a dense inverse; normal equations against a dense build
+F64_SERIES = 1e-10
+#: results of a solve, of log near pi or of a small-angle series; pixels of an exact projection
+F64_SOLVE = 1e-9
+#: quantities amplified by conditioning (Umeyama alignment, Hessians relative to their maximum)
+F64_CONDITIONED = 1e-8
+
+# --- Finite differences (central, float64) ------------------------------------------------------
+#: Jacobians of smooth O(1) maps (SE(3) actions, calibrated projection): truncation + round-off
+FD_SMOOTH = 1e-7
+#: Jacobians of O(1) maps (Sim(3) actions scaled by 1 + max|P|, projection with depth)
+FD_ATOL = 1e-6
+#: relative part of a finite-difference Jacobian check
+FD_RTOL = 1e-5
+#: BAL camera Jacobians (focal lengths ~500 amplify the step's truncation), robust weights
+FD_LOOSE = 1e-4
+#: backend block Jacobians: absolute part, times the Jacobian's largest entry
+FD_SCALED = 1e-5
+#: tracking's ray Jacobian (unit rays: the smallest entries sit near the round-off floor)
+FD_TRACKING = 2e-7
+#: a gradient against differences of the whole robust cost (step 1e-7 on costs of order 1e3)
+FD_COST_GRADIENT = 1e-3
+
+# --- Solvers and iterations ----------------------------------------------------------------------
+#: the Schur-complement step against the dense normal-equations step (relative)
+SCHUR_VS_DENSE = 1e-7
+#: fast vs reference LM cost history in float64 over every iteration (relative)
+LM_COST_HISTORY = 1e-7
+#: fast vs reference LM points after the last iteration (relative)
+LM_POINTS = 1e-6
+#: where matching's per-pixel LM stops on an analytic pair (pixels; its convergence threshold)
+ITER_PROJ_PX = 1e-3
+#: a series that is the identity near 0 (pts3d activation at |v| = 1e-8, relative)
+SERIES_NEAR_ZERO = 1e-7
+
+# --- Float32 data and files ----------------------------------------------------------------------
+#: float32 values of order 1 (unit descriptor norms, contrasts, normalised colours)
+F32_UNIT = 1e-6
+#: separable descriptors against the one-matrix formula (float32 sums in another order)
+DESCRIPTOR_FORMULA = 5e-5
+#: descriptors of 2·I + 1 against those of I (uint8 rounding of the doubled image)
+DESCRIPTOR_CONTRAST = 2e-4
+#: values read back from text written with 6 decimals (timestamps, evo's table, TUM positions)
+TEXT_6_DECIMALS = 1e-6
+#: TUM depth PNGs: half a step of the 1/5000 m quantisation (plus round-off)
+TUM_DEPTH_STEP = 0.5 / 5000 + 1e-12
+#: 7-Scenes per-frame pose matrices against the clip's quaternion ground truth (rounded text)
+SEVEN_SCENES_POSE = 1e-3
+#: two-view prior: triangulated points against the true ones (relative)
+TRIANGULATION = 1e-3
+#: two-view prior: dense flow against the true one (pixels)
+FLOW_PX = 1e-4
+#: sample standard deviation of the synthetic prior's pose noise against its sigma (relative)
+NOISE_STD = 0.25
+#: retrieval scores: asymmetry allowed, as a share of the smallest self-score
+SCORE_SYMMETRY = 0.5

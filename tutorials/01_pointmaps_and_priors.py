@@ -23,7 +23,7 @@
 # 1. pixels, rays and back-projection (`mslam_ref.pointmap`);
 # 2. a synthetic scene with exact ground truth (`mslam_ref.synthetic`);
 # 3. the synthetic prior: ground truth plus a documented noise model;
-# 4. the RGB-D prior on a real 7-Scenes pair (skipped when `../shared/data` is absent);
+# 4. the RGB-D prior on a real 7-Scenes pair (skipped without the data folder, `MSLAM_DATA`);
 # 5. upstream's resize to the network resolution and the matching intrinsics.
 
 # %%
@@ -150,13 +150,13 @@ assert np.median(true_sim) > np.median(off_sim)
 # the ground truth, which we only use here to measure the error.
 
 # %%
-# ../shared/data sits beside the checkout. A notebook has no __file__, so look beside the
-# checkout the installed package comes from (reference/mslam_ref -> the checkout's parent).
-import mslam_ref
+# The data folder comes from the environment variable MSLAM_DATA (the tests set it); the
+# 7-Scenes clip is its seq/7scenes_redkitchen_f000000-000149.
+import os
 
-DATA = Path(mslam_ref.__file__).resolve().parents[3] / "shared" / "data"
-SEVEN = DATA / "seq" / "7scenes_redkitchen_f000000-000149"
-if SEVEN.is_dir():
+DATA = os.environ.get("MSLAM_DATA")
+SEVEN = Path(DATA or "") / "seq" / "7scenes_redkitchen_f000000-000149"
+if DATA and SEVEN.is_dir():
     from mslam.datasets import load_sequence
     from mslam.priors.rgbd import RGBDPrior
 
@@ -179,7 +179,7 @@ if SEVEN.is_dir():
         "rgbd_prior",
     )
 else:
-    print(f"shared data not found at {SEVEN}; skipping the real pair")
+    print(f"the 7-Scenes clip is not at {SEVEN} (set MSLAM_DATA); skipping the real pair")
 
 # %% [markdown]
 # ## 5. Upstream's network resolution

@@ -21,7 +21,7 @@ import numpy.typing as npt
 from mslam_ref.conventions import as_float_array
 
 _ARCHS = ("cpu", "cuda")
-_FPS = {"f64": np.float64, "f32": np.float32}
+_FPS: dict[str, type[np.floating[Any]]] = {"f64": np.float64, "f32": np.float32}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -49,8 +49,10 @@ def _normalise_fp(default_fp: Any) -> str:
     if isinstance(default_fp, str):
         key = default_fp.lower().replace("float", "f")
     else:
-        key = {np.float64: "f64", np.float32: "f32"}.get(default_fp)  # numpy types
-        if key is None:
+        numpy_key = {np.float64: "f64", np.float32: "f32"}.get(default_fp)  # numpy types
+        if numpy_key is not None:
+            key = numpy_key
+        else:
             key = {"f64": "f64", "f32": "f32"}.get(str(default_fp).split(".")[-1].lower(), "")
     if key not in _FPS:
         raise ValueError(f"default_fp: expected 'f64' or 'f32', got {default_fp!r}")

@@ -25,6 +25,7 @@ import taichi as ti
 from mslam_fast._kernels import sim3 as S
 from mslam_fast._kernels import tracking as KT
 from mslam_fast._runtime import ensure_init
+from mslam_fast._types import nd, template
 from mslam_ref import backend as ref_backend
 from mslam_ref import sim3 as _sim3
 from mslam_ref.backend import BackendConfig, BackendInfo, PoseGraph
@@ -32,7 +33,6 @@ from mslam_ref.backend import BackendConfig, BackendInfo, PoseGraph
 __all__ = ["linearize", "solve"]
 
 Array = np.ndarray[Any, Any]
-nd = ti.types.ndarray()
 
 CHUNK = KT.CHUNK
 
@@ -50,7 +50,7 @@ def _linearize_k(
     pix: nd,
     prm: nd,
     out: nd,
-    calib: ti.template(),
+    calib: template,
 ):
     n = C.shape[1]
     n_cols = pix.shape[0]

@@ -15,19 +15,19 @@ import taichi as ti
 
 from mslam_fast._kernels import fusion as KF
 from mslam_fast._runtime import ensure_init
+from mslam_fast._types import nd, template
 from mslam_ref import fusion as ref_fusion
 from mslam_ref.fusion import FusionConfig, PointmapState
 
 __all__ = ["update_pointmap"]
 
 Array = np.ndarray[Any, Any]
-nd = ti.types.ndarray()
 
 _KERNEL_MODES = {"weighted_pointmap": 0, "weighted_spherical": 1, "indep_conf": 2}
 
 
 @ti.kernel
-def _fuse_k(Xs: nd, Cs: nd, X: nd, C: nd, Xo: nd, Co: nd, mode: ti.template()):
+def _fuse_k(Xs: nd, Cs: nd, X: nd, C: nd, Xo: nd, Co: nd, mode: template):
     for n in range(Xs.shape[0]):
         a = ti.Vector([Xs[n, 0], Xs[n, 1], Xs[n, 2]])
         b = ti.Vector([X[n, 0], X[n, 1], X[n, 2]])

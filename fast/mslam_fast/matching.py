@@ -31,6 +31,7 @@ import taichi as ti
 from mslam_fast import _matching_host as host
 from mslam_fast._kernels import matching as K
 from mslam_fast._runtime import ensure_init
+from mslam_fast._types import nd, template
 from mslam_ref.matching import MatchingConfig
 from mslam_ref.matching_inputs import check_match_inputs, image_batch, int_pixels
 
@@ -42,7 +43,6 @@ __all__ = [
 ]
 
 Array = np.ndarray[Any, Any]
-nd = ti.types.ndarray()
 LANES_CPU = 4  # pixels per CPU thread in the LM (lockstep, see K.lm_lanes); 1 on CUDA
 
 
@@ -56,7 +56,7 @@ def _lanes() -> int:
 
 
 @ti.func
-def _ray_image(X: ti.template(), RG: ti.template()):
+def _ray_image(X: template, RG: template):
     """Loops 1 and 2: unit rays into RG[..., 0:3], then their Scharr gradients into 3:9."""
     B, H, W = X.shape[0], X.shape[1], X.shape[2]
     for b, v, u in ti.ndrange(B, H, W):
@@ -76,7 +76,7 @@ def _rays_k(X: nd, RG: nd):
 
 
 @ti.func
-def _targets(X21: ti.template(), b, g, N, L: ti.template()):
+def _targets(X21: template, b, g, N, L: template):
     """Unit targets of pixels g·L .. g·L + L − 1 (clamped to N − 1) as an (L, 3) matrix."""
     T = ti.Matrix([[0.0] * 3 for _ in ti.static(range(L))])
     for l in ti.static(range(L)):
@@ -97,7 +97,7 @@ def _iter_proj_k(
     max_iter: ti.i32,
     lam0: float,
     thresh: float,
-    lanes: ti.template(),
+    lanes: template,
 ):
     H, W = RG.shape[1], RG.shape[2]
     N = X21.shape[1]
@@ -118,7 +118,7 @@ def _iter_proj_k(
 
 
 @ti.func
-def _copy_rows(D: ti.template(), Dp: ti.template()):
+def _copy_rows(D: template, Dp: template):
     """Rows of ``D (M, F)`` (any float type) into the zeroed ``Dp (M, Fp)`` (runtime type)."""
     for r, k in ti.ndrange(D.shape[0], D.shape[1]):
         Dp[r, k] = ti.cast(D[r, k], float)
@@ -134,7 +134,7 @@ def _refine_k(
     out: nd,
     H: ti.i32,
     W: ti.i32,
-    radius: ti.template(),
+    radius: template,
     dmax: ti.i32,
 ):
     K.pad_descriptors(D11, D1p, H, W, radius * dmax)
@@ -173,9 +173,9 @@ def _match_k(
     lam0: float,
     thresh: float,
     dist_thresh: float,
-    radius: ti.template(),
+    radius: template,
     dmax: ti.i32,
-    lanes: ti.template(),
+    lanes: template,
 ):
     _ray_image(X11, RG)
     H, W = X11.shape[1], X11.shape[2]

@@ -15,6 +15,7 @@ import taichi as ti
 
 from mslam_fast._kernels import sim3 as K
 from mslam_fast._runtime import ensure_init, flat, prepare, run_batch
+from mslam_fast._types import nd
 from mslam_ref.conventions import SIM3_SIGMA_MAX, as_float_array, sim3_tangent
 
 # fmt: off
@@ -25,7 +26,6 @@ __all__ = [  # in reading order
 # fmt: on
 
 Array = np.ndarray[Any, Any]
-nd = ti.types.ndarray()
 
 
 # --- batch kernels: one per public function, so every ti.func is testable on its own ---------

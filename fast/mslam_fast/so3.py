@@ -16,6 +16,7 @@ import taichi as ti
 
 from mslam_fast._kernels import sim3 as K
 from mslam_fast._runtime import prepare, run_batch
+from mslam_fast._types import nd
 
 __all__ = [
     "act",
@@ -29,7 +30,6 @@ __all__ = [
 ]
 
 Array = np.ndarray[Any, Any]
-nd = ti.types.ndarray()
 
 
 # --- batch kernels: one per public function ------------------------------------------------

@@ -28,6 +28,7 @@ import taichi as ti
 from mslam_fast._kernels import sim3 as S
 from mslam_fast._kernels import tracking as KT
 from mslam_fast._runtime import ensure_init
+from mslam_fast._types import nd, template
 from mslam_ref import sim3 as _sim3
 from mslam_ref import tracking as ref_tracking
 from mslam_ref.tracking import TrackingConfig, TrackingInfo
@@ -35,13 +36,12 @@ from mslam_ref.tracking import TrackingConfig, TrackingInfo
 __all__ = ["linearize", "solve"]
 
 Array = np.ndarray[Any, Any]
-nd = ti.types.ndarray()
 
 CHUNK = KT.CHUNK
 
 
 @ti.kernel
-def _linearize_k(T: nd, Xf: nd, Xk: nd, Q: nd, valid: nd, prm: nd, out: nd, calib: ti.template()):
+def _linearize_k(T: nd, Xf: nd, Xk: nd, Q: nd, valid: nd, prm: nd, out: nd, calib: template):
     n = Q.shape[0]
     for c in range(out.shape[0]):
         acc = ti.Vector.zero(ti.f64, KT.NACC)

@@ -163,7 +163,7 @@ def ray_image_and_gradients(X11: Any) -> FloatArray:
 # --- §4.2 per-pixel Levenberg–Marquardt ------------------------------------------------------
 
 
-def _ray_cost(S: FloatArray, t: FloatArray) -> FloatArray:
+def _ray_cost(S: FloatArray, t: FloatArray) -> tuple[FloatArray, FloatArray]:
     """‖normalize(sampled ray) − t‖² per pixel; S (..., >=3), t (..., 3)."""
     r = S[..., :3] / np.maximum(np.sqrt(_dot3(S[..., :3], S[..., :3])), NORM_EPS)[..., None]
     e = r - t

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from tolerances import F64_COPY
 
 from mslam import bal as io
 from mslam_ref.ba import synthetic
@@ -56,8 +57,8 @@ def test_g2o_round_trip(tmp_path: Path) -> None:
     np.testing.assert_allclose(g.information[0], np.eye(6))
     io.write_g2o_se3(g, tmp_path / "h.g2o")
     h = io.read_g2o_se3(tmp_path / "h.g2o")
-    np.testing.assert_allclose(h.poses, g.poses, atol=1e-15)
-    np.testing.assert_allclose(h.measurements, g.measurements, atol=1e-15)
+    np.testing.assert_allclose(h.poses, g.poses, atol=F64_COPY)
+    np.testing.assert_allclose(h.measurements, g.measurements, atol=F64_COPY)
     np.testing.assert_array_equal(h.information, g.information)
 
 

@@ -76,7 +76,7 @@ def test_bad_root_exits_2(tmp_path, capsys) -> None:
 
 
 def test_7scenes_redkitchen_table(shared_data, tmp_path) -> None:
-    """The issue's acceptance: redkitchen 0-149 through eval-dataset, ATE <= 2 cm, stamps that
+    """Acceptance: redkitchen 0-149 through eval-dataset, ATE <= 2 cm, stamps that
     associate with the folder's own ground truth."""
     import mslam_fast
     from mslam import evaluate

@@ -8,6 +8,14 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from tolerances import (
+    F64_CONDITIONED,
+    F64_IDENTITY,
+    F64_SOLVE,
+    SEVEN_SCENES_POSE,
+    TEXT_6_DECIMALS,
+    TUM_DEPTH_STEP,
+)
 
 from mslam.cli import main
 from mslam.datasets import (
@@ -44,13 +52,15 @@ def test_synth_tum_round_trip(tum_dir: Path) -> None:
     ref = make_sequence("loop", n_frames=8, width=W, height=H, seed=4)
     seq = load_sequence(tum_dir)
     assert len(seq) == 8 and seq.has_depth and seq.T_WC is not None
-    np.testing.assert_allclose(seq.K, ref.K, rtol=1e-12)
-    np.testing.assert_allclose(seq.timestamps, ref.timestamps, atol=1e-6)
+    np.testing.assert_allclose(seq.K, ref.K, rtol=F64_IDENTITY)
+    np.testing.assert_allclose(seq.timestamps, ref.timestamps, atol=TEXT_6_DECIMALS)
     for i in (0, 7):
         a, b = seq[i], ref[i]
         np.testing.assert_array_equal(a.rgb, b.rgb)
-        np.testing.assert_allclose(a.depth, b.depth, atol=0.5 / 5000 + 1e-12)
-        np.testing.assert_allclose(sim3.to_matrix(a.T_WC), sim3.to_matrix(b.T_WC), atol=1e-8)
+        np.testing.assert_allclose(a.depth, b.depth, atol=TUM_DEPTH_STEP)
+        np.testing.assert_allclose(
+            sim3.to_matrix(a.T_WC), sim3.to_matrix(b.T_WC), atol=F64_CONDITIONED
+        )
     cal = read_calibration(tum_dir / "calib.yaml")
     assert (cal.width, cal.height, cal.depth_scale) == (W, H, 5000.0)
     t, T = read_tum(tum_dir / "groundtruth.txt")
@@ -81,7 +91,7 @@ def test_calibration_with_distortion_undistorts(tum_dir: Path, tmp_path: Path) -
     calib = tmp_path / "cam.yaml"
     calib.write_text(f"width: {W}\nheight: {H}\ncalibration: [50, 50, 30, 25, 0.1, -0.05, 0, 0]\n")
     seq = load_sequence(tum_dir, calib=calib)
-    np.testing.assert_allclose(seq.K[:2, 2], [(W - 1) / 2, (H - 1) / 2], atol=1e-9)
+    np.testing.assert_allclose(seq.K[:2, 2], [(W - 1) / 2, (H - 1) / 2], atol=F64_SOLVE)
     assert abs(seq.K[0, 0] / seq.K[1, 1] - 1.0) < 1e-12
     f = seq[1]
     assert f.rgb.shape == (H, W, 3) and f.depth.shape == (H, W)
@@ -158,11 +168,11 @@ def test_euroc(tmp_path: Path) -> None:
     (gt / "data.csv").write_text("\n".join(lines) + "\n")
     seq = load_sequence(tmp_path / "MH_01")
     assert len(seq) == 4 and not seq.has_depth
-    np.testing.assert_allclose(seq.K[:2, 2], [(W - 1) / 2, (H - 1) / 2], atol=1e-9)
+    np.testing.assert_allclose(seq.K[:2, 2], [(W - 1) / 2, (H - 1) / 2], atol=F64_SOLVE)
     f = seq[2]
     assert f.rgb.shape == (H, W, 3) and np.all(f.rgb[..., 0] == f.rgb[..., 1])
     assert f.timestamp == pytest.approx((t0 + 2 * 50_000_000) * 1e-9)
-    np.testing.assert_allclose(seq.T_WC[2, :3], [0.3, 0, 1], atol=1e-12)
+    np.testing.assert_allclose(seq.T_WC[2, :3], [0.3, 0, 1], atol=F64_IDENTITY)
 
 
 def test_seven_scenes(shared_data: Path) -> None:
@@ -175,9 +185,9 @@ def test_seven_scenes(shared_data: Path) -> None:
     valid = f.depth > 0
     assert 0.5 < valid.mean() and 0.3 < np.median(f.depth[valid]) < 5.0
     M = np.loadtxt(folder / "frame-000020.pose.txt")
-    np.testing.assert_allclose(sim3.to_matrix(f.T_WC), M, atol=1e-3)
+    np.testing.assert_allclose(sim3.to_matrix(f.T_WC), M, atol=SEVEN_SCENES_POSE)
     _, T = read_tum(folder / "groundtruth.txt")
-    np.testing.assert_allclose(seq.T_WC[:, :3], T[:, :3], atol=1e-6)
+    np.testing.assert_allclose(seq.T_WC[:, :3], T[:, :3], atol=TEXT_6_DECIMALS)
     sub = load_sequence(folder, subsample=10, size=(160, 120))
     assert len(sub) == 15 and sub[1].rgb.shape == (120, 160, 3) and sub[1].index == 1
     np.testing.assert_allclose(sub.K[0, 0], 585 / 4)

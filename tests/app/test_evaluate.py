@@ -1,7 +1,7 @@
 """ATE (evo-compatible association + Umeyama) and reconstruction metrics (mslam.evaluate).
 
-The evo rows are the reference numbers of ../shared/data/traj/SOURCES.md (evo 1.38.1), rounded
-there to 6 decimals; every one is reproduced to 1e-6.
+The evo rows are the reference numbers of the data folder's traj/SOURCES.md (evo 1.38.1),
+rounded there to 6 decimals; every one is reproduced to 1e-6.
 """
 
 from __future__ import annotations
@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+from tolerances import F64_CONDITIONED, F64_IDENTITY, TEXT_6_DECIMALS
 
 from mslam import evaluate as ev
 from mslam import formats as io
@@ -49,7 +50,7 @@ def _check_row(res: ev.AteResult, matched, n_est, scale, rmse, mean, median, mx)
     if scale is not None:
         assert res.scale == pytest.approx(scale, abs=1e-6)
     got = (res.rmse, res.mean, res.median, res.max)
-    np.testing.assert_allclose(got, (rmse, mean, median, mx), rtol=0, atol=1e-6)
+    np.testing.assert_allclose(got, (rmse, mean, median, mx), rtol=0, atol=TEXT_6_DECIMALS)
 
 
 @pytest.mark.parametrize("row", EVO_ROWS, ids=lambda r: f"{r[1]}-{r[2]}")
@@ -108,7 +109,7 @@ def test_transformed_gt_gives_zero_ate_and_recovers_scale(seed, log_s, align) ->
     assert res.matched == n and res.n_est == n
     assert res.rmse < 1e-9 * max(1.0, 1.0 / s)
     assert res.scale == pytest.approx(1.0 / s, rel=1e-9)
-    np.testing.assert_allclose(res.aligned_positions, gt[:, :3], atol=1e-8)
+    np.testing.assert_allclose(res.aligned_positions, gt[:, :3], atol=F64_CONDITIONED)
 
 
 def test_se3_alignment_cannot_absorb_scale_but_sim3_can() -> None:
@@ -136,7 +137,7 @@ def test_umeyama_reflection_case_gives_a_rotation() -> None:
     dst = src * np.array([1, 1, -1.0])  # a mirror image: best proper rotation, det +1
     R, _, s = ev.umeyama(src, dst, with_scale=True)
     assert np.linalg.det(R) == pytest.approx(1.0)
-    np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-12)
+    np.testing.assert_allclose(R @ R.T, np.eye(3), atol=F64_IDENTITY)
     assert 0 < s < 1
 
 

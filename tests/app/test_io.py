@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+from tolerances import F64_COPY, F64_IDENTITY
 
 from mslam import formats as io
 from mslam_ref import sim3
@@ -31,13 +32,13 @@ def test_tum_round_trip_is_exact_and_drops_scale(tmp_path_factory, seed, n) -> N
     t2, p2 = io.read_tum(path)
     np.testing.assert_array_equal(t2, stamps)
     np.testing.assert_array_equal(p2[:, :3], T[:, :3])
-    np.testing.assert_allclose(p2[:, 3:], T[:, 3:7], atol=1e-15)
+    np.testing.assert_allclose(p2[:, 3:], T[:, 3:7], atol=F64_COPY)
     # A (n, 4, 4) Sim(3) matrix writes the same pose with the scale divided out.
     io.write_tum(path, stamps, sim3.to_matrix(T))
     _, p3 = io.read_tum(path)
-    np.testing.assert_allclose(p3[:, :3], T[:, :3], atol=1e-12)
+    np.testing.assert_allclose(p3[:, :3], T[:, :3], atol=F64_IDENTITY)
     q = p3[:, 3:] * np.sign(np.sum(p3[:, 3:] * T[:, 3:7], axis=1, keepdims=True))
-    np.testing.assert_allclose(q, T[:, 3:7], atol=1e-12)
+    np.testing.assert_allclose(q, T[:, 3:7], atol=F64_IDENTITY)
 
 
 def test_tum_line_format(tmp_path) -> None:

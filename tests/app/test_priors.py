@@ -6,6 +6,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from tolerances import F32_UNIT, F64_IDENTITY, F64_ULPS, NOISE_STD, SERIES_NEAR_ZERO
 
 from mslam.datasets.synthetic import make_sequence
 from mslam.priors import DESC_DIM, PairPrediction, Prior, check_prediction
@@ -45,9 +46,11 @@ def test_noise_free_prior_is_ground_truth(seq) -> None:
     )  # fmt: skip
     fi, fj = seq[3], seq[5]
     pred = SyntheticPrior(seq, cfg).pair(fi, fj)
-    np.testing.assert_allclose(pred.X_ii, backproject(fi.depth, seq.K), atol=1e-12)
+    np.testing.assert_allclose(pred.X_ii, backproject(fi.depth, seq.K), atol=F64_IDENTITY)
     T_ij = sim3.mul(sim3.inv(fi.T_WC), fj.T_WC)
-    np.testing.assert_allclose(pred.X_ji, sim3.act(T_ij, backproject(fj.depth, seq.K)), atol=1e-12)
+    np.testing.assert_allclose(
+        pred.X_ji, sim3.act(T_ij, backproject(fj.depth, seq.K)), atol=F64_IDENTITY
+    )
 
 
 def test_depth_noise_statistics(seq) -> None:
@@ -97,7 +100,7 @@ def test_pair_scale_and_sim3_error_statistics(seq) -> None:
     xis, scales = np.array(xis), np.array(scales)
     assert len(scales) > 150
     assert 0.04 < scales.std() < 0.06
-    np.testing.assert_allclose(xis.std(axis=0), [0.02] * 3 + [0.01] * 3 + [0.03], rtol=0.25)
+    np.testing.assert_allclose(xis.std(axis=0), [0.02] * 3 + [0.01] * 3 + [0.03], rtol=NOISE_STD)
     # The errors are what pair() applies (no other noise): X_ji = s E T_ij X_jj.
     clean = replace(cfg, depth_sigma0=0.0, depth_sigma2=0.0, outlier_frac=0.0)
     p2 = SyntheticPrior(seq, clean)
@@ -105,8 +108,10 @@ def test_pair_scale_and_sim3_error_statistics(seq) -> None:
     s, E = p2.pair_errors(fi, fj)
     pred = p2.pair(fi, fj)
     T = sim3.mul(E, sim3.mul(sim3.inv(fi.T_WC), fj.T_WC))
-    np.testing.assert_allclose(pred.X_ji, s * sim3.act(T, backproject(fj.depth, seq.K)), atol=1e-12)
-    np.testing.assert_allclose(pred.X_ii, s * backproject(fi.depth, seq.K), atol=1e-12)
+    np.testing.assert_allclose(
+        pred.X_ji, s * sim3.act(T, backproject(fj.depth, seq.K)), atol=F64_IDENTITY
+    )
+    np.testing.assert_allclose(pred.X_ii, s * backproject(fi.depth, seq.K), atol=F64_IDENTITY)
 
 
 def test_covisibility_lowers_confidence(seq) -> None:
@@ -122,14 +127,14 @@ def test_covisibility_lowers_confidence(seq) -> None:
 def test_patch_descriptors_discriminate(seq) -> None:
     D, contrast = patch_descriptors(seq[0].rgb)
     assert D.shape == (H, W, DESC_DIM) and contrast.shape == (H, W)
-    np.testing.assert_allclose(np.linalg.norm(D, axis=-1), 1.0, atol=1e-6)  # float32
+    np.testing.assert_allclose(np.linalg.norm(D, axis=-1), 1.0, atol=F32_UNIT)  # float32
     # A pixel is more similar to itself shifted by one pixel than to random pixels.
     near = (D[:, 1:] * D[:, :-1]).sum(-1).mean()
     rng = np.random.default_rng(0)
     far = (D.reshape(-1, DESC_DIM) * rng.permutation(D.reshape(-1, DESC_DIM))).sum(-1).mean()
     assert near > far + 0.3
     flat = patch_descriptors(np.full((8, 8, 3), 120, np.uint8))[0]
-    np.testing.assert_allclose(np.linalg.norm(flat, axis=-1), 1.0, atol=1e-6)  # float32
+    np.testing.assert_allclose(np.linalg.norm(flat, axis=-1), 1.0, atol=F32_UNIT)  # float32
 
 
 def test_check_prediction_rejects_bad_outputs(seq) -> None:
@@ -366,14 +371,14 @@ def test_mast3r_activations() -> None:
 
     v = np.array([[3.0, 0.0, 4.0], [0.0, 0.0, 0.0], [1e-8, 0, 0]])
     out = pts3d_activation(v)
-    np.testing.assert_allclose(out[0], np.array([0.6, 0, 0.8]) * np.expm1(5.0), rtol=1e-14)
+    np.testing.assert_allclose(out[0], np.array([0.6, 0, 0.8]) * np.expm1(5.0), rtol=F64_ULPS)
     np.testing.assert_array_equal(out[1], 0.0)
-    np.testing.assert_allclose(out[2], v[2], rtol=1e-7)  # ~identity near 0
+    np.testing.assert_allclose(out[2], v[2], rtol=SERIES_NEAR_ZERO)  # ~identity near 0
     assert np.all(conf_activation(np.array([-50.0, 0.0, 3.0])) >= 1.0)
     assert conf_activation(0.0) == 2.0
     assert np.all(desc_conf_activation(np.array([-30.0, 0.0])) > 0)
     d = desc_activation(np.random.default_rng(0).normal(size=(4, 5, 24)))
-    np.testing.assert_allclose(np.linalg.norm(d, axis=-1), 1.0, rtol=1e-14)
+    np.testing.assert_allclose(np.linalg.norm(d, axis=-1), 1.0, rtol=F64_ULPS)
 
 
 class _StandInMast3r:

@@ -1,7 +1,7 @@
-"""Issue 13: bad inputs end with one line naming the file/key/value, exit 2, before the work.
+"""Bad inputs end with one line naming the file/key/value, exit 2, before the work.
 
 Sources by explicit scheme, configuration ranges, degenerate alignments in ``eval``, BAL/g2o
-readers. Every test here failed on a73c10d (docs/reliability.md).
+readers (docs/reliability.md).
 """
 
 from __future__ import annotations
@@ -119,7 +119,8 @@ def test_eval_refuses_degenerate_alignments(tmp_path, capsys, case, expected):
 
 
 def test_eval_alignment_is_scale_invariant(tmp_path, capsys):
-    """Relative tests: the same shape at 1e-200 or 1e300 aligns like at 1 (a73c10d: scale 0)."""
+    """Relative tests: the same shape at 1e-200 or 1e300 aligns like at 1 (an absolute
+    threshold would give scale 0)."""
     t = np.arange(5.0)
     gt = _traj(tmp_path / "gt.txt", t, _GOOD)
     for k in (1e-200, 1.0, 1e300):

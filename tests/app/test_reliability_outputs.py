@@ -1,6 +1,6 @@
-"""Issue 13: outputs are whole or absent; faults end with one line and the documented exit code.
+"""Outputs are whole or absent; faults end with one line and the documented exit code.
 
-Every test here failed on a73c10d (docs/reliability.md lists which fault each one holds).
+docs/reliability.md lists which fault each test holds.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""What keeps a run's cost from growing with the resolution and the map (issue 17).
+"""What keeps a run's cost from growing with the resolution and the map.
 
 * patch descriptors built a few rows at a time equal the one-matrix formula;
 * ICP and the backend use a regular pixel grid whose size does not grow with the image;
@@ -16,6 +16,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 from numpy.lib.stride_tricks import sliding_window_view
+from tolerances import DESCRIPTOR_FORMULA, F32_UNIT
 
 from mslam.config import load_config
 from mslam.kernels import load_kernels
@@ -57,9 +58,9 @@ def test_patch_descriptors_equal_the_formula(H, W, step, kind) -> None:
     D0, c0 = _descriptors_one_matrix(rgb, cfg)
     # The descriptors are float32 (the contrast is summed in float64 from float32 pixels).
     assert D.dtype == np.float32
-    np.testing.assert_allclose(c, c0, atol=1e-6)
-    np.testing.assert_allclose(D, D0, atol=5e-5)
-    np.testing.assert_allclose(np.linalg.norm(D, axis=-1), 1.0, atol=1e-6)
+    np.testing.assert_allclose(c, c0, atol=F32_UNIT)
+    np.testing.assert_allclose(D, D0, atol=DESCRIPTOR_FORMULA)
+    np.testing.assert_allclose(np.linalg.norm(D, axis=-1), 1.0, atol=F32_UNIT)
 
 
 @pytest.mark.parametrize(("H", "W"), [(120, 160), (192, 256), (384, 512), (480, 640)])

@@ -1,4 +1,4 @@
-"""Two-view prior (issue 15): geometry on synthetic pairs with known pose and depth."""
+"""Two-view prior: geometry on synthetic pairs with known pose and depth."""
 
 from __future__ import annotations
 
@@ -6,6 +6,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+from tolerances import TRIANGULATION
 
 from mslam.datasets.synthetic import make_sequence
 from mslam.priors.base import check_prediction
@@ -64,7 +65,7 @@ def test_triangulation_and_essential_pose_are_exact_on_exact_correspondences(seq
     s = np.linalg.norm(t_gt)
     X, angle, ok = triangulate_midpoint(uv_i, uv_j, seq.K, R, t * s)
     assert ok.all() and np.all(angle > 0)
-    np.testing.assert_allclose(X, X_i, rtol=1e-3)
+    np.testing.assert_allclose(X, X_i, rtol=TRIANGULATION)
 
 
 def test_flow_forward_backward_is_small_where_both_views_see_the_scene(seq):

@@ -1,4 +1,4 @@
-"""Two-view prior beyond DIS's range and on planar scenes (issue 15): known poses and depths."""
+"""Two-view prior beyond DIS's range and on planar scenes: known poses and depths."""
 
 from __future__ import annotations
 
@@ -6,6 +6,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+from tolerances import FLOW_PX
 
 from mslam.datasets.synthetic import make_sequence
 from mslam.priors.twoview import TwoViewPrior, TwoViewPriorConfig
@@ -44,7 +45,7 @@ def test_homography_flow_is_the_homography():
     assert F.shape == (H, W, 2)
     for u, v in [(0, 0), (W - 1, 7), (40, H - 1)]:
         p = Hm @ [u, v, 1.0]
-        np.testing.assert_allclose(F[v, u], p[:2] / p[2] - [u, v], atol=1e-4)
+        np.testing.assert_allclose(F[v, u], p[:2] / p[2] - [u, v], atol=FLOW_PX)
 
 
 def test_guidance_off_is_plain_dis(loop):

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from tolerances import tol
+from tolerances import LM_COST_HISTORY, LM_POINTS, tol
 
 import mslam_ref.ba as R
 from mslam_ref.ba import lm, synthetic
@@ -67,9 +67,9 @@ def test_parity_lm_run(fast64: str, problem) -> None:
     assert fst.iterations == ref.iterations
     t = tol("ba", "f64")
     np.testing.assert_allclose([h["cost"] for h in fst.history], [h["cost"] for h in ref.history],
-                               rtol=1e-7)  # fmt: skip
+                               rtol=LM_COST_HISTORY)  # fmt: skip
     np.testing.assert_allclose(
-        fst.problem.points, ref.problem.points, rtol=1e-6, atol=t["atol"] * 1e3
+        fst.problem.points, ref.problem.points, rtol=LM_POINTS, atol=t["atol"] * 1e3
     )
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from tolerances import tol
+from tolerances import F64_IDENTITY, F64_SOLVE, tol
 
 from mslam_ref import backend as ref
 from mslam_ref import sim3
@@ -95,8 +95,8 @@ def test_residual_pixel_subset(fast: str, calibrated: bool) -> None:
         X, C, ii, jj, idx[:, pixels], valid[:, pixels], Q[:, pixels], Kc, pixels
     )
     sub = ref.linearize(T, sub_graph)
-    np.testing.assert_allclose(sub[0], full[0], rtol=1e-12, atol=1e-9)
-    np.testing.assert_allclose(sub[1], full[1], rtol=1e-12, atol=1e-9)
+    np.testing.assert_allclose(sub[0], full[0], rtol=F64_IDENTITY, atol=F64_SOLVE)
+    np.testing.assert_allclose(sub[1], full[1], rtol=F64_IDENTITY, atol=F64_SOLVE)
     assert sub[2] == pytest.approx(full[2], rel=1e-12)
     Hf, gf, cf = fst.linearize(T, sub_graph)
     t = tol("backend", fast)

@@ -7,6 +7,7 @@ import itertools
 
 import numpy as np
 import pytest
+from tolerances import F64_CONDITIONED, F64_SOLVE, FD_LOOSE, FD_RTOL, SCHUR_VS_DENSE
 
 import mslam_ref.ba as K
 from mslam_ref import se3
@@ -42,9 +43,11 @@ def test_pinhole_jacobians_fd() -> None:
                                              [0], [0], p.meas[e][None], st[e][None])[0]  # fmt: skip
 
         np.testing.assert_allclose(
-            Jc[e], _fd(res_pose, p.poses[c], se3.retract, 6), rtol=1e-5, atol=1e-4
+            Jc[e], _fd(res_pose, p.poses[c], se3.retract, 6), rtol=FD_RTOL, atol=FD_LOOSE
         )
-        np.testing.assert_allclose(Jp[e], _fd(res_pt, p.points[j], np.add, 3), rtol=1e-5, atol=1e-4)
+        np.testing.assert_allclose(
+            Jp[e], _fd(res_pt, p.points[j], np.add, 3), rtol=FD_RTOL, atol=FD_LOOSE
+        )
         np.testing.assert_allclose(r[e], res_pose(p.poses[c]))
 
 
@@ -64,8 +67,12 @@ def test_bal_jacobians_fd() -> None:
         def retr(C, d):
             return bal_retract_cameras(C[None], d[None])[0]
 
-        np.testing.assert_allclose(Jc[e], _fd(res_cam, p.cameras[c], retr, 9), rtol=1e-5, atol=1e-4)
-        np.testing.assert_allclose(Jp[e], _fd(res_pt, p.points[j], np.add, 3), rtol=1e-5, atol=1e-4)
+        np.testing.assert_allclose(
+            Jc[e], _fd(res_cam, p.cameras[c], retr, 9), rtol=FD_RTOL, atol=FD_LOOSE
+        )
+        np.testing.assert_allclose(
+            Jp[e], _fd(res_pt, p.points[j], np.add, 3), rtol=FD_RTOL, atol=FD_LOOSE
+        )
 
 
 @pytest.mark.parametrize("kind", ["none", "huber", "tukey"])
@@ -77,7 +84,7 @@ def test_robust_kernels(kind: str) -> None:
     rp, _ = rho_and_weight(s + h, k)
     rm, _ = rho_and_weight(np.maximum(s - h, 0.0), k)
     num = (rp - rm) / (s + h - np.maximum(s - h, 0.0))
-    np.testing.assert_allclose(w, num, atol=1e-4)
+    np.testing.assert_allclose(w, num, atol=FD_LOOSE)
     np.testing.assert_allclose(
         rho[:2], s[:2] if kind != "tukey" else 4 / 3 * (1 - (1 - s[:2] / 4) ** 3)
     )
@@ -129,11 +136,11 @@ def test_schur_step_equals_dense_step(seed: int, kind: str) -> None:
         J[e * k : (e + 1) * k, i * d : (i + 1) * d] = Jc[e]
         J[e * k : (e + 1) * k, M * d + 3 * j : M * d + 3 * j + 3] = Jp[e]
     ww = np.repeat(w, k)
-    np.testing.assert_allclose(H, J.T @ (ww[:, None] * J), atol=1e-8 * np.abs(H).max())
-    np.testing.assert_allclose(b, -J.T @ (ww * r.ravel()), atol=1e-8 * np.abs(b).max())
+    np.testing.assert_allclose(H, J.T @ (ww[:, None] * J), atol=F64_CONDITIONED * np.abs(H).max())
+    np.testing.assert_allclose(b, -J.T @ (ww * r.ravel()), atol=F64_CONDITIONED * np.abs(b).max())
     dc, dl = lm.solve_damped(blocks, 0.1, st)
-    np.testing.assert_allclose(dc, dc_d, rtol=1e-7, atol=1e-9)
-    np.testing.assert_allclose(dl, dl_d, rtol=1e-7, atol=1e-9)
+    np.testing.assert_allclose(dc, dc_d, rtol=SCHUR_VS_DENSE, atol=F64_SOLVE)
+    np.testing.assert_allclose(dl, dl_d, rtol=SCHUR_VS_DENSE, atol=F64_SOLVE)
 
 
 def test_duplicate_observation_and_sparse_path(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -145,11 +152,11 @@ def test_duplicate_observation_and_sparse_path(monkeypatch: pytest.MonkeyPatch) 
     blocks = schur.normal_blocks(r, Jc, Jp, np.ones(len(r)), st)
     dc_d, dl_d, _, _ = _dense_step(blocks, 0.3, st)
     dc, _ = lm.solve_damped(blocks, 0.3, st)
-    np.testing.assert_allclose(dc, dc_d, rtol=1e-7, atol=1e-9)
+    np.testing.assert_allclose(dc, dc_d, rtol=SCHUR_VS_DENSE, atol=F64_SOLVE)
     monkeypatch.setattr(schur, "DENSE_MAX", 0)  # sparse LU path
     dc2, dl2 = lm.solve_damped(blocks, 0.3, st)
-    np.testing.assert_allclose(dc2, dc_d, rtol=1e-7, atol=1e-9)
-    np.testing.assert_allclose(dl2, dl_d, rtol=1e-7, atol=1e-9)
+    np.testing.assert_allclose(dc2, dc_d, rtol=SCHUR_VS_DENSE, atol=F64_SOLVE)
+    np.testing.assert_allclose(dl2, dl_d, rtol=SCHUR_VS_DENSE, atol=F64_SOLVE)
 
 
 @pytest.mark.parametrize("jacobi", [False, True])

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from tolerances import F64_IDENTITY, F64_SOLVE, FD_ATOL, FD_RTOL, FD_SMOOTH
 
 from mslam_ref import calib, sim3
 from mslam_ref.pointmap import backproject
@@ -43,7 +44,7 @@ def test_constrain_points_to_ray() -> None:
     np.testing.assert_array_equal(Y[..., 2], X[..., 2])
     uv = (Y[..., :2] / Y[..., 2:]) * [K[0, 0], K[1, 1]] + [K[0, 2], K[1, 2]]
     v, u = np.mgrid[0:H, 0:W]
-    np.testing.assert_allclose(uv[0], np.stack([u, v], -1), atol=1e-12)
+    np.testing.assert_allclose(uv[0], np.stack([u, v], -1), atol=F64_IDENTITY)
     np.testing.assert_allclose(calib.constrain_points_to_ray(Y, K), Y)  # idempotent
     with pytest.raises(ValueError, match="X"):
         calib.constrain_points_to_ray(np.ones((4, 3)), K)
@@ -63,7 +64,7 @@ def test_project_calib_jacobian_and_validity() -> None:
             calib.project_calib_and_jacobian(P + d, K, (H, W))[0]
             - calib.project_calib_and_jacobian(P - d, K, (H, W))[0]
         ) / (2 * eps)
-        np.testing.assert_allclose(J[:, :, a], fd, atol=1e-6, rtol=1e-6)
+        np.testing.assert_allclose(J[:, :, a], fd, atol=FD_ATOL, rtol=FD_ATOL)
     # border: strict inequalities, border = -10 admits points up to 10 px outside
     x = lambda u: (u - K[0, 2]) / K[0, 0]
     Pb = np.array(
@@ -87,11 +88,11 @@ def test_calib_residual_zero_at_truth_and_jacobian() -> None:
     X_k, X_f, T = _scene()
     r, J, valid = calib.calib_residual_and_jacobian(T, X_f, X_k, K, TrackingConfig())
     assert r.shape == (H * W, 3) and J.shape == (H * W, 3, 7) and valid.all()
-    np.testing.assert_allclose(r, 0.0, atol=1e-9)
+    np.testing.assert_allclose(r, 0.0, atol=F64_SOLVE)
     T1 = sim3.retract(T, np.array([0.01, -0.02, 0.01, 0.01, 0.02, -0.01, 0.03]))
     _, J1, v1 = calib.calib_residual_and_jacobian(T1, X_f, X_k, K)
     fd = _fd(lambda TT: calib.calib_residual_and_jacobian(TT, X_f, X_k, K)[0], T1)
-    np.testing.assert_allclose(J1[v1], fd[v1], atol=1e-6, rtol=1e-5)
+    np.testing.assert_allclose(J1[v1], fd[v1], atol=FD_ATOL, rtol=FD_RTOL)
 
 
 def test_calib_residual_validity() -> None:
@@ -112,8 +113,8 @@ def test_calib_residual_validity() -> None:
 def test_point_residual() -> None:
     X_k, X_f, T = _scene(3)
     r, _ = calib.point_residual_and_jacobian(T, X_f, X_k)
-    np.testing.assert_allclose(r, 0.0, atol=1e-12)
+    np.testing.assert_allclose(r, 0.0, atol=F64_IDENTITY)
     T1 = sim3.retract(T, np.full(7, 0.02))
     _, J1 = calib.point_residual_and_jacobian(T1, X_f, X_k)
     fd = _fd(lambda TT: calib.point_residual_and_jacobian(TT, X_f, X_k)[0], T1)
-    np.testing.assert_allclose(J1, fd, atol=1e-7)
+    np.testing.assert_allclose(J1, fd, atol=FD_SMOOTH)

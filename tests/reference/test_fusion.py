@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from tolerances import F64_IDENTITY
 
 from mslam_ref import fusion
 from mslam_ref.fusion import FusionConfig
@@ -45,7 +46,9 @@ def test_weighted_spherical() -> None:
     # pixel 1: r = sqrt2 and sqrt10, phi = pi/2 both, theta = acos(1/sqrt2), acos(1/sqrt10)
     r = (2 * np.sqrt(2) + 2 * np.sqrt(10)) / 4
     th = (2 * np.arccos(1 / np.sqrt(2)) + 2 * np.arccos(1 / np.sqrt(10))) / 4
-    np.testing.assert_allclose(s.X_canon[1], [0.0, r * np.sin(th), r * np.cos(th)], atol=1e-12)
+    np.testing.assert_allclose(
+        s.X_canon[1], [0.0, r * np.sin(th), r * np.cos(th)], atol=F64_IDENTITY
+    )
     # pixel 0: phi = 0 both, radii 5 and sqrt5 (weights 1, 3)
     r0 = (np.sqrt(5) + 3 * 5) / 4
     th0 = (np.arccos(2 / np.sqrt(5)) + 3 * np.arccos(4 / 5)) / 4

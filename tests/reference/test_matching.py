@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+from tolerances import F64_COPY, F64_IDENTITY, F64_SOLVE, F64_ULPS, ITER_PROJ_PX
 
 from mslam_ref import matching as M
 from mslam_ref import sim3
@@ -152,14 +153,14 @@ def test_scharr_of_linear_ramp_is_its_slope(a: float, b: float, c: float, H: int
     gx, gy = M.scharr_gradients(img)
     slope = np.array([1.0, -2.0])
     np.testing.assert_allclose(
-        gx[1:-1, 1:-1], np.broadcast_to(a * slope, (H - 2, W - 2, 2)), atol=1e-12
+        gx[1:-1, 1:-1], np.broadcast_to(a * slope, (H - 2, W - 2, 2)), atol=F64_IDENTITY
     )
     np.testing.assert_allclose(
-        gy[1:-1, 1:-1], np.broadcast_to(b * slope, (H - 2, W - 2, 2)), atol=1e-12
+        gy[1:-1, 1:-1], np.broadcast_to(b * slope, (H - 2, W - 2, 2)), atol=F64_IDENTITY
     )
     # reflect padding mirrors the neighbour: the derivative across the border is zero
-    np.testing.assert_allclose(gx[:, [0, -1]], 0.0, atol=1e-12)
-    np.testing.assert_allclose(gy[[0, -1], :], 0.0, atol=1e-12)
+    np.testing.assert_allclose(gx[:, [0, -1]], 0.0, atol=F64_IDENTITY)
+    np.testing.assert_allclose(gy[[0, -1], :], 0.0, atol=F64_IDENTITY)
 
 
 def test_ray_image_units_zero_and_nonfinite_points() -> None:
@@ -172,11 +173,11 @@ def test_ray_image_units_zero_and_nonfinite_points() -> None:
     n = np.linalg.norm(RG[..., :3], axis=-1)
     bad = np.zeros((12, 16), bool)
     bad[2, 3] = bad[5, 6] = bad[7, 1] = True
-    np.testing.assert_allclose(n[~bad], 1.0, atol=1e-14)
+    np.testing.assert_allclose(n[~bad], 1.0, atol=F64_ULPS)
     np.testing.assert_array_equal(n[bad], 0.0)
     RGb = M.ray_image_and_gradients(np.stack([X11, 2 * X11]))  # batch axis; rays scale-free
     np.testing.assert_allclose(RGb[0], RG)
-    np.testing.assert_allclose(RGb[1], RG, atol=1e-15)
+    np.testing.assert_allclose(RGb[1], RG, atol=F64_COPY)
 
 
 @given(seed=st.integers(0, 2**16))
@@ -189,7 +190,7 @@ def test_bilinear_sample_is_exact_on_affine_images(seed: int) -> None:
     us, vs = rng.uniform(0, W - 2, (1, 20)), rng.uniform(0, H - 2, (1, 20))
     got = M.bilinear_sample(img[None], us, vs)
     want = np.stack([us, vs, np.ones_like(us)], -1) @ A
-    np.testing.assert_allclose(got, want, atol=1e-12)
+    np.testing.assert_allclose(got, want, atol=F64_IDENTITY)
 
 
 # --- §4.2 LM and §4.3 truncation -----------------------------------------------------------
@@ -212,7 +213,7 @@ def test_lm_reaches_subpixel_target_and_match_truncates() -> None:
     RG = M.ray_image_and_gradients(X11)
     target = M.bilinear_sample(RG, np.array([10.7]), np.array([6.3]))[:, :3]
     p, conv = M.iter_proj(RG, target, np.array([[8.0, 5.0]]))
-    np.testing.assert_allclose(p[0], [10.7, 6.3], atol=1e-3)
+    np.testing.assert_allclose(p[0], [10.7, 6.3], atol=ITER_PROJ_PX)
     assert conv[0]
     X21 = np.broadcast_to(X11[6, 10], (H, W, 3)).copy()
     X21[0, 0] = target[0] * np.linalg.norm(X11[6, 10])
@@ -243,7 +244,7 @@ def test_identical_pointmaps_give_identity() -> None:
         X11.reshape(-1, 3),
         np.stack([n % W, n // W], -1).astype(float),
     )
-    np.testing.assert_allclose(p[inner], np.stack([n % W, n // W], -1)[inner], atol=1e-9)
+    np.testing.assert_allclose(p[inner], np.stack([n % W, n // W], -1)[inner], atol=F64_SOLVE)
     idx, valid = M.match(X11, X11, D, D, cfg=NO_REFINE)
     exact = inner & (idx == n)
     assert exact.sum() >= 0.99 * inner.sum()

@@ -7,6 +7,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
+from tolerances import F64_IDENTITY, F64_SOLVE, FD_SMOOTH
 
 from mslam_ref import se3, so3
 
@@ -19,18 +20,20 @@ def test_exp_log_round_trip(xi: np.ndarray) -> None:
     if np.linalg.norm(xi[:3]) > 3.0:
         xi = xi.copy()
         xi[:3] *= 3.0 / np.linalg.norm(xi[:3])
-    np.testing.assert_allclose(se3.log(se3.exp(xi)), xi, atol=1e-9)
+    np.testing.assert_allclose(se3.log(se3.exp(xi)), xi, atol=F64_SOLVE)
 
 
 @given(vec6, vec6, vec3)
 def test_mul_inv_act_matrix(a: np.ndarray, b: np.ndarray, X: np.ndarray) -> None:
     A, B = se3.exp(a), se3.exp(b)
     np.testing.assert_allclose(
-        se3.to_matrix(se3.mul(A, B)), se3.to_matrix(A) @ se3.to_matrix(B), atol=1e-12
+        se3.to_matrix(se3.mul(A, B)), se3.to_matrix(A) @ se3.to_matrix(B), atol=F64_IDENTITY
     )
-    np.testing.assert_allclose(se3.act(se3.mul(se3.inv(A), A), X), X, atol=1e-12)
-    np.testing.assert_allclose(se3.from_matrix(se3.to_matrix(A)), A, atol=1e-12)
-    np.testing.assert_allclose(se3.act(A, X), (se3.to_matrix(A) @ np.r_[X, 1.0])[:3], atol=1e-12)
+    np.testing.assert_allclose(se3.act(se3.mul(se3.inv(A), A), X), X, atol=F64_IDENTITY)
+    np.testing.assert_allclose(se3.from_matrix(se3.to_matrix(A)), A, atol=F64_IDENTITY)
+    np.testing.assert_allclose(
+        se3.act(A, X), (se3.to_matrix(A) @ np.r_[X, 1.0])[:3], atol=F64_IDENTITY
+    )
 
 
 def test_exp_matches_matrix_exponential() -> None:
@@ -41,7 +44,7 @@ def test_exp_matches_matrix_exponential() -> None:
         X = np.zeros((4, 4))
         X[:3, :3] = so3.hat(xi[:3])
         X[:3, 3] = xi[3:]
-        np.testing.assert_allclose(se3.to_matrix(se3.exp(xi)), expm(X), atol=1e-12)
+        np.testing.assert_allclose(se3.to_matrix(se3.exp(xi)), expm(X), atol=F64_IDENTITY)
 
 
 @pytest.mark.parametrize("shape", [(), (1,), (3, 1, 2), (0,)])
@@ -60,11 +63,11 @@ def test_act_jacobian_fd() -> None:
     num = np.stack(
         [(se3.act(se3.retract(T, h * e), X) - se3.act(se3.retract(T, -h * e), X)) / (2 * h)
          for e in np.eye(6)], -1)  # fmt: skip
-    np.testing.assert_allclose(J_xi, num, atol=1e-7)
+    np.testing.assert_allclose(J_xi, num, atol=FD_SMOOTH)
     numX = np.stack(
         [(se3.act(T, X + h * e) - se3.act(T, X - h * e)) / (2 * h) for e in np.eye(3)], -1
     )
-    np.testing.assert_allclose(J_X, numX, atol=1e-7)
+    np.testing.assert_allclose(J_X, numX, atol=FD_SMOOTH)
     np.testing.assert_allclose(Y, se3.act(T, X))
 
 

@@ -20,6 +20,15 @@ from strategies import (
     tangents,
     tiny_tangents,
 )
+from tolerances import (
+    F64_COPY,
+    F64_IDENTITY,
+    F64_IDENTITY_POINTS,
+    F64_SERIES,
+    F64_SHORT_CHAIN,
+    F64_SOLVE,
+    FD_ATOL,
+)
 
 from mslam_ref import sim3, so3
 
@@ -50,8 +59,8 @@ def test_mul_is_associative(A: np.ndarray, B: np.ndarray, C: np.ndarray) -> None
 @given(T=stacked(sim3_elements()), X=stacked(points()))
 def test_identity(T: np.ndarray, X: np.ndarray) -> None:
     eye = sim3.identity((4,))
-    np.testing.assert_allclose(sim3.mul(eye, T), T, rtol=0, atol=1e-15)
-    np.testing.assert_allclose(sim3.mul(T, eye), T, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(sim3.mul(eye, T), T, rtol=0, atol=F64_COPY)
+    np.testing.assert_allclose(sim3.mul(T, eye), T, rtol=0, atol=F64_COPY)
     np.testing.assert_array_equal(sim3.act(eye, X), X)
     np.testing.assert_array_equal(sim3.exp(np.zeros(7)), sim3.identity())
 
@@ -65,9 +74,12 @@ def test_inverse(T: np.ndarray, X: np.ndarray) -> None:
     eye = sim3.identity((4,))
     assert_same_element(sim3.mul(T, sim3.inv(T)), eye)
     assert_same_element(sim3.mul(sim3.inv(T), T), eye)
-    np.testing.assert_allclose(sim3.act(sim3.inv(T), sim3.act(T, X)), X, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(sim3.act(sim3.inv(T), sim3.act(T, X)), X, rtol=0, atol=F64_SOLVE)
     np.testing.assert_allclose(
-        sim3.to_matrix(sim3.inv(T)), np.linalg.inv(sim3.to_matrix(T)), rtol=1e-10, atol=1e-10
+        sim3.to_matrix(sim3.inv(T)),
+        np.linalg.inv(sim3.to_matrix(T)),
+        rtol=F64_SERIES,
+        atol=F64_SERIES,
     )
 
 
@@ -77,9 +89,14 @@ def test_mul_is_matrix_product_and_composes_actions(
 ) -> None:
     AB = sim3.mul(A, B)
     np.testing.assert_allclose(
-        sim3.to_matrix(AB), sim3.to_matrix(A) @ sim3.to_matrix(B), rtol=1e-12, atol=1e-12
+        sim3.to_matrix(AB),
+        sim3.to_matrix(A) @ sim3.to_matrix(B),
+        rtol=F64_IDENTITY,
+        atol=F64_IDENTITY,
     )
-    np.testing.assert_allclose(sim3.act(AB, X), sim3.act(A, sim3.act(B, X)), rtol=1e-12, atol=1e-11)
+    np.testing.assert_allclose(
+        sim3.act(AB, X), sim3.act(A, sim3.act(B, X)), rtol=F64_IDENTITY, atol=F64_IDENTITY_POINTS
+    )
 
 
 # --- Exp / Log --------------------------------------------------------------------------------
@@ -89,13 +106,13 @@ def test_mul_is_matrix_product_and_composes_actions(
 @given(xi=tangents())
 def test_log_exp_roundtrip(xi: np.ndarray) -> None:
     """Log(Exp(xi)) = xi for ||phi|| < pi (Log is unique there)."""
-    np.testing.assert_allclose(sim3.log(sim3.exp(xi)), xi, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(sim3.log(sim3.exp(xi)), xi, rtol=F64_SOLVE, atol=F64_SOLVE)
 
 
 @given(xi=tiny_tangents())
 def test_log_exp_roundtrip_near_identity(xi: np.ndarray) -> None:
     """Entries <= 1e-7: absolute 1e-15 (s = e^sigma is stored, so log s carries ~1e-16)."""
-    np.testing.assert_allclose(sim3.log(sim3.exp(xi)), xi, rtol=1e-9, atol=1e-15)
+    np.testing.assert_allclose(sim3.log(sim3.exp(xi)), xi, rtol=F64_SOLVE, atol=F64_COPY)
 
 
 @given(T=sim3_elements())
@@ -110,7 +127,7 @@ def test_exp_log_roundtrip(T: np.ndarray) -> None:
 def test_exp_matches_matrix_exponential(xi: np.ndarray) -> None:
     """Exp(xi) equals scipy's expm of the 4x4 hat matrix."""
     np.testing.assert_allclose(
-        sim3.to_matrix(sim3.exp(xi)), scipy.linalg.expm(hat4(xi)), rtol=1e-9, atol=1e-9
+        sim3.to_matrix(sim3.exp(xi)), scipy.linalg.expm(hat4(xi)), rtol=F64_SOLVE, atol=F64_SOLVE
     )
 
 
@@ -139,9 +156,11 @@ def test_adjoint_identity(T: np.ndarray, a: np.ndarray) -> None:
     Ad = sim3.adjoint(T)
     lhs = MT @ sim3.to_matrix(sim3.exp(a)) @ np.linalg.inv(MT)
     np.testing.assert_allclose(
-        lhs, sim3.to_matrix(sim3.exp(Ad @ a)), rtol=1e-9, atol=1e-9 * np.abs(lhs).max()
+        lhs, sim3.to_matrix(sim3.exp(Ad @ a)), rtol=F64_SOLVE, atol=F64_SOLVE * np.abs(lhs).max()
     )
-    np.testing.assert_allclose(MT @ hat4(a) @ np.linalg.inv(MT), hat4(Ad @ a), rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(
+        MT @ hat4(a) @ np.linalg.inv(MT), hat4(Ad @ a), rtol=F64_SOLVE, atol=F64_SOLVE
+    )
 
 
 @given(T=stacked(sim3_elements()), J=stacked(tangents()))
@@ -149,9 +168,12 @@ def test_adjoint_inv_apply(T: np.ndarray, J: np.ndarray) -> None:
     """adjoint_inv_apply(T, J) == J @ inv(adjoint(T)), and == J @ adjoint(T^-1)."""
     expected = np.einsum("...i,...ij->...j", J, np.linalg.inv(sim3.adjoint(T)))
     got = sim3.adjoint_inv_apply(T, J)
-    np.testing.assert_allclose(got, expected, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(got, expected, rtol=F64_SOLVE, atol=F64_SOLVE)
     np.testing.assert_allclose(
-        got, np.einsum("...i,...ij->...j", J, sim3.adjoint(sim3.inv(T))), rtol=1e-9, atol=1e-9
+        got,
+        np.einsum("...i,...ij->...j", J, sim3.adjoint(sim3.inv(T))),
+        rtol=F64_SOLVE,
+        atol=F64_SOLVE,
     )
 
 
@@ -174,7 +196,7 @@ def test_act_and_jacobian_matches_finite_differences(T: np.ndarray, X: np.ndarra
     eps = 1e-6
     E = eps * np.eye(7)
     fd = (sim3.act(sim3.retract(T, E), X) - sim3.act(sim3.retract(T, -E), X)) / (2 * eps)
-    np.testing.assert_allclose(J, fd.T, rtol=0, atol=1e-6 * (1.0 + np.abs(P).max()))
+    np.testing.assert_allclose(J, fd.T, rtol=0, atol=FD_ATOL * (1.0 + np.abs(P).max()))
 
 
 # --- matrices ------------------------------------------------------------------------------------
@@ -186,10 +208,12 @@ def test_matrix_roundtrip(T: np.ndarray) -> None:
     M = sim3.to_matrix(T)
     back = sim3.from_matrix(M)
     assert back[6] >= 0.0
-    np.testing.assert_allclose(back[[0, 1, 2, 7]], T[[0, 1, 2, 7]], rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(
+        back[[0, 1, 2, 7]], T[[0, 1, 2, 7]], rtol=F64_IDENTITY, atol=F64_IDENTITY
+    )
     q = T[3:7] if T[6] >= 0 else -T[3:7]
-    np.testing.assert_allclose(back[3:7], q, rtol=0, atol=1e-9)
-    np.testing.assert_allclose(sim3.to_matrix(back), M, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(back[3:7], q, rtol=0, atol=F64_SOLVE)
+    np.testing.assert_allclose(sim3.to_matrix(back), M, rtol=F64_IDENTITY, atol=F64_IDENTITY)
 
 
 def test_from_matrix_rejects_reflections() -> None:
@@ -352,5 +376,7 @@ def test_unnormalised_quaternion_is_normalised(T: np.ndarray, X: np.ndarray) -> 
     """Scaling q by 3 changes nothing: every function normalises it on input."""
     T3 = T.copy()
     T3[3:7] *= 3.0
-    np.testing.assert_allclose(sim3.act(T3, X), sim3.act(T, X), rtol=1e-13, atol=1e-13)
-    np.testing.assert_allclose(sim3.validate(T3), sim3.validate(T), rtol=1e-15, atol=1e-15)
+    np.testing.assert_allclose(
+        sim3.act(T3, X), sim3.act(T, X), rtol=F64_SHORT_CHAIN, atol=F64_SHORT_CHAIN
+    )
+    np.testing.assert_allclose(sim3.validate(T3), sim3.validate(T), rtol=F64_COPY, atol=F64_COPY)

@@ -18,6 +18,7 @@ from strategies import (
     stacked,
     unit_axes,
 )
+from tolerances import F64_COPY, F64_IDENTITY, F64_SERIES, F64_ULPS
 
 from mslam_ref import so3
 
@@ -32,7 +33,7 @@ def edge_phi(theta: float, sigma: float = 0.0) -> np.ndarray:
 @given(phi=rotation_vectors())
 def test_log_exp_roundtrip(phi: np.ndarray) -> None:
     """Log(Exp(phi)) = phi for ||phi|| < pi, including tiny angles and angles near pi."""
-    np.testing.assert_allclose(so3.log(so3.exp(phi)), phi, rtol=1e-10, atol=1e-15)
+    np.testing.assert_allclose(so3.log(so3.exp(phi)), phi, rtol=F64_SERIES, atol=F64_COPY)
 
 
 @given(q=quaternions())
@@ -43,14 +44,17 @@ def test_exp_log_roundtrip_any_sign(q: np.ndarray) -> None:
     back = so3.exp(phi)
     assert min(np.abs(back - q).max(), np.abs(back + q).max()) < 1e-10
     np.testing.assert_allclose(
-        so3.to_matrix(so3.exp(so3.log(-q))), so3.to_matrix(q), rtol=0, atol=1e-10
+        so3.to_matrix(so3.exp(so3.log(-q))), so3.to_matrix(q), rtol=0, atol=F64_SERIES
     )
 
 
 @given(phi=rotation_vectors(max_angle=np.pi))
 def test_exp_matches_matrix_exponential(phi: np.ndarray) -> None:
     np.testing.assert_allclose(
-        so3.to_matrix(so3.exp(phi)), scipy.linalg.expm(so3.hat(phi)), rtol=1e-10, atol=1e-10
+        so3.to_matrix(so3.exp(phi)),
+        scipy.linalg.expm(so3.hat(phi)),
+        rtol=F64_SERIES,
+        atol=F64_SERIES,
     )
 
 
@@ -58,30 +62,30 @@ def test_exp_matches_matrix_exponential(phi: np.ndarray) -> None:
 def test_log_at_exactly_pi_has_norm_pi(ax: np.ndarray) -> None:
     """At theta = pi (w = 0 up to rounding) Log returns one of the two equivalent answers."""
     phi = so3.log(np.append(ax, 0.0))
-    np.testing.assert_allclose(np.linalg.norm(phi), np.pi, rtol=1e-14)
+    np.testing.assert_allclose(np.linalg.norm(phi), np.pi, rtol=F64_ULPS)
     assert min(np.abs(phi - np.pi * ax).max(), np.abs(phi + np.pi * ax).max()) < 1e-12
 
 
 @given(q1=stacked(quaternions()), q2=stacked(quaternions()), X=stacked(points()))
 def test_mul_conj_act_agree_with_matrices(q1: np.ndarray, q2: np.ndarray, X: np.ndarray) -> None:
     R1, R2 = so3.to_matrix(q1), so3.to_matrix(q2)
-    np.testing.assert_allclose(so3.to_matrix(so3.mul(q1, q2)), R1 @ R2, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(so3.to_matrix(so3.mul(q1, q2)), R1 @ R2, rtol=0, atol=F64_IDENTITY)
     np.testing.assert_allclose(
-        so3.act(q1, X), np.einsum("...ij,...j->...i", R1, X), rtol=0, atol=1e-12
+        so3.act(q1, X), np.einsum("...ij,...j->...i", R1, X), rtol=0, atol=F64_IDENTITY
     )
     np.testing.assert_allclose(
-        so3.to_matrix(so3.conj(q1)), np.swapaxes(R1, -1, -2), rtol=0, atol=1e-15
+        so3.to_matrix(so3.conj(q1)), np.swapaxes(R1, -1, -2), rtol=0, atol=F64_COPY
     )
     np.testing.assert_allclose(
-        so3.mul(q1, so3.conj(q1)), batch_of(np.array([0.0, 0, 0, 1]), (4,)), atol=1e-14
+        so3.mul(q1, so3.conj(q1)), batch_of(np.array([0.0, 0, 0, 1]), (4,)), atol=F64_ULPS
     )
-    np.testing.assert_allclose(np.linalg.det(R1), 1.0, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(np.linalg.det(R1), 1.0, rtol=0, atol=F64_IDENTITY)
 
 
 @given(q1=quaternions(), q2=quaternions(), q3=quaternions())
 def test_mul_is_associative(q1: np.ndarray, q2: np.ndarray, q3: np.ndarray) -> None:
     np.testing.assert_allclose(
-        so3.mul(so3.mul(q1, q2), q3), so3.mul(q1, so3.mul(q2, q3)), rtol=0, atol=1e-14
+        so3.mul(so3.mul(q1, q2), q3), so3.mul(q1, so3.mul(q2, q3)), rtol=0, atol=F64_ULPS
     )
 
 
@@ -94,12 +98,12 @@ def test_matrix_roundtrip(q: np.ndarray) -> None:
     if abs(q[3]) < 1e-9:  # theta ~ pi: q and -q both have w ~ 0
         assert min(np.abs(back - q).max(), np.abs(back + q).max()) < 1e-9
     else:
-        np.testing.assert_allclose(back, expected, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(back, expected, rtol=0, atol=F64_IDENTITY)
 
 
 @given(v=points(), w=points())
 def test_hat_is_cross_product(v: np.ndarray, w: np.ndarray) -> None:
-    np.testing.assert_allclose(so3.hat(v) @ w, np.cross(v, w), rtol=1e-14, atol=1e-12)
+    np.testing.assert_allclose(so3.hat(v) @ w, np.cross(v, w), rtol=F64_ULPS, atol=F64_IDENTITY)
     np.testing.assert_array_equal(so3.hat(v), -so3.hat(v).T)
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from tolerances import F64_COPY, F64_IDENTITY, F64_SOLVE
 
 from mslam.datasets.synthetic import make_sequence
 from mslam_ref import sim3
@@ -52,7 +53,7 @@ def test_cast_rays_analytic_empty_room() -> None:
     o = np.array([0.5, -0.25, 1.0])
     dirs = np.array([[0, 0, -1.0], [0, 0, 2.0], [1.0, 0, 0], [0, -1.0, 0], [1.0, 1.0, 0]])
     t, sid = cast_rays(scene, o, dirs)
-    np.testing.assert_allclose(t, [1.0, 0.8, 2.5, 2.25, 2.5], rtol=0, atol=1e-15)
+    np.testing.assert_allclose(t, [1.0, 0.8, 2.5, 2.25, 2.5], rtol=0, atol=F64_COPY)
     assert sid.tolist() == [4, 5, 1, 2, 1]
     with pytest.raises(ValueError, match="origin"):
         cast_rays(scene, np.array([10.0, 0, 1]), dirs)
@@ -66,7 +67,7 @@ def test_depth_is_z_along_optical_axis() -> None:
     X = backproject(f.depth, seq.K).reshape(-1, 3)
     n = np.linalg.norm(X, axis=-1)
     t, _ = cast_rays(seq.scene, M[:3, 3], (X / n[:, None]) @ M[:3, :3].T)
-    np.testing.assert_allclose(t, n, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(t, n, rtol=F64_IDENTITY, atol=F64_IDENTITY)
 
 
 @pytest.mark.parametrize(
@@ -102,7 +103,7 @@ def test_pixel_centres_reproject_exactly() -> None:
     Xa = (P - MA[:3, 3]) @ MA[:3, :3]
     # Pure rotation: the same centre, so every point is visible from A along its ray.
     t, _ = cast_rays(seq.scene, MA[:3, 3], (Xa / Xa[..., 2:]).reshape(-1, 3) @ MA[:3, :3].T)
-    np.testing.assert_allclose(t, Xa[..., 2].reshape(-1), rtol=1e-12, atol=1e-9)
+    np.testing.assert_allclose(t, Xa[..., 2].reshape(-1), rtol=F64_IDENTITY, atol=F64_SOLVE)
 
 
 def test_paths_shape_the_motion() -> None:
@@ -126,7 +127,7 @@ def test_paths_shape_the_motion() -> None:
     jump = camera_path("jump", n, seed=0)
     (j,) = jump_indices(n)
     assert j == j1
-    np.testing.assert_allclose(jump[:j, :3], detour[:j, :3], atol=1e-12)
+    np.testing.assert_allclose(jump[:j, :3], detour[:j, :3], atol=F64_IDENTITY)
     jsteps = np.linalg.norm(np.diff(jump[:, :3], axis=0), axis=1)
     assert set(np.flatnonzero(jsteps > 10 * np.median(jsteps)) + 1) == {j}
 

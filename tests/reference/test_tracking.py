@@ -9,6 +9,15 @@ import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+from tolerances import (
+    F64_IDENTITY,
+    F64_SERIES,
+    F64_SOLVE,
+    FD_COST_GRADIENT,
+    FD_LOOSE,
+    FD_RTOL,
+    FD_TRACKING,
+)
 
 from mslam_ref import sim3, tracking
 from mslam_ref.pointmap import backproject
@@ -64,13 +73,13 @@ def test_ray_dist_jacobian_matches_finite_differences(seed: int) -> None:
         ],
         T1,
     )
-    np.testing.assert_allclose(J, fd, atol=2e-7, rtol=1e-5)
+    np.testing.assert_allclose(J, fd, atol=FD_TRACKING, rtol=FD_RTOL)
 
 
 def test_residuals_zero_at_truth_and_origin_is_finite() -> None:
     X_k, X_f, T = _problem(1)
     r, _ = tracking.ray_dist_residual_and_jacobian(T, X_f, X_k)
-    np.testing.assert_allclose(r, 0.0, atol=1e-12)
+    np.testing.assert_allclose(r, 0.0, atol=F64_IDENTITY)
     r0, J0 = tracking.ray_dist_residual_and_jacobian(
         sim3.identity(), np.zeros((2, 3)), np.ones((2, 3))
     )
@@ -88,7 +97,7 @@ def test_linearize_is_the_robust_normal_equations(calibrated: bool) -> None:
     Kc = K if calibrated else None
     Hm, g, cost = tracking.linearize(T1, X_f, X_k, Q, valid, cfg, Kc)
     assert Hm.shape == (7, 7) and g.shape == (7,)
-    np.testing.assert_allclose(Hm, Hm.T, rtol=1e-12)
+    np.testing.assert_allclose(Hm, Hm.T, rtol=F64_IDENTITY)
     assert np.linalg.eigvalsh(Hm).min() > 0
     # explicit formulation
     if calibrated:
@@ -103,8 +112,8 @@ def test_linearize_is_the_robust_normal_equations(calibrated: bool) -> None:
     a = si * np.sqrt(np.where(wr < 1.345, 1.0, 1.345 / np.maximum(wr, 1e-300)))
     A = (a[..., None] * J).reshape(-1, 7)
     b = (a * r).ravel()
-    np.testing.assert_allclose(Hm, A.T @ A, rtol=1e-10)
-    np.testing.assert_allclose(g, -A.T @ b, rtol=1e-10, atol=1e-9)
+    np.testing.assert_allclose(Hm, A.T @ A, rtol=F64_SERIES)
+    np.testing.assert_allclose(g, -A.T @ b, rtol=F64_SERIES, atol=F64_SOLVE)
     assert cost == pytest.approx(0.5 * b @ b, rel=1e-12)
 
 
@@ -116,7 +125,7 @@ def test_gradient_of_the_cost_without_huber() -> None:
     cfg = TrackingConfig(huber=1e9)
     _, g, _ = tracking.linearize(T1, X_f, X_k, Q, valid, cfg)
     cost = lambda TT: np.array([tracking.linearize(TT, X_f, X_k, Q, valid, cfg)[2]])
-    np.testing.assert_allclose(-_fd(cost, T1, 1e-7)[0], g, rtol=1e-4, atol=1e-3)
+    np.testing.assert_allclose(-_fd(cost, T1, 1e-7)[0], g, rtol=FD_LOOSE, atol=FD_COST_GRADIENT)
 
 
 @pytest.mark.parametrize("calibrated", [False, True])
@@ -139,7 +148,7 @@ def test_solve_exact_data_from_truth_stops_at_step_zero() -> None:
     X_k, X_f, T = _problem(6)
     T_est, info = tracking.solve(X_f, X_k, np.full(H * W, 2.0), np.ones(H * W, bool), T)
     assert info.iterations == 1 and info.converged and not info.failed
-    np.testing.assert_allclose(T_est, T, atol=1e-9)
+    np.testing.assert_allclose(T_est, T, atol=F64_SOLVE)
 
 
 def test_cholesky_failure_reports_failed_and_keeps_the_pose() -> None:

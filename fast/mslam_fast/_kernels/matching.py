@@ -16,6 +16,8 @@ border of P = radius·dilation_max zero pixels, ``D11 (B·(H+2P)·(W+2P), Fp)`` 
 
 import taichi as ti
 
+from mslam_fast._types import template
+
 NORM_EPS = 1e-12  # F.normalize eps, as mslam_ref.matching.NORM_EPS
 DET_MIN = 1e-30  # 2x2 determinant below which the LM step is zero, as mslam_ref.matching.DET_MIN
 
@@ -33,7 +35,7 @@ def normalize3(x):
 
 
 @ti.func
-def load3(A: ti.template(), b, i, j):
+def load3(A: template, b, i, j):
     """A[b, i, j, 0:3] as a 3-vector (a point of a (B, H, W, 3) array)."""
     return ti.Vector([A[b, i, j, 0], A[b, i, j, 1], A[b, i, j, 2]])
 
@@ -50,7 +52,7 @@ def reflect(i, n):
 
 
 @ti.func
-def scharr_at(R: ti.template(), b, v, u, H, W, c):
+def scharr_at(R: template, b, v, u, H, W, c):
     """Scharr gx, gy (1/32, cross-correlation, reflect padding) of channel c of R at (v, u)."""
     um, up = reflect(u - 1, W), reflect(u + 1, W)
     vm, vp = reflect(v - 1, H), reflect(v + 1, H)
@@ -68,7 +70,7 @@ def scharr_at(R: ti.template(), b, v, u, H, W, c):
 
 
 @ti.func
-def sample9(RG: ti.template(), b, u, v):
+def sample9(RG: template, b, u, v):
     """Bilinear sample of all 9 channels of RG at (u, v) (0 <= u <= W-2, 0 <= v <= H-2)."""
     fu, fv = ti.floor(u), ti.floor(v)
     iu, iv = ti.cast(fu, ti.i32), ti.cast(fv, ti.i32)
@@ -103,9 +105,7 @@ def clamp(x, lo, hi):
 
 
 @ti.func
-def lm_lanes(
-    RG: ti.template(), b, T, u_init, v_init, H, W, max_iter, lam0, thresh, L: ti.template()
-):
+def lm_lanes(RG: template, b, T, u_init, v_init, H, W, max_iter, lam0, thresh, L: template):
     """Per-pixel LM of ``mslam_ref.matching.iter_proj`` for L pixels in lockstep.
 
     ``T (L, 3)`` holds the unit targets, ``u_init``/``v_init`` the L starts; returns the L-vectors
@@ -166,7 +166,7 @@ def lm_lanes(
 
 
 @ti.func
-def pad_descriptors(D: ti.template(), Dp: ti.template(), H, W, pad):
+def pad_descriptors(D: template, Dp: template, H, W, pad):
     """Copy the rows of ``D (B·H·W, F)`` (any float type) into ``Dp (B·Hp·Wp, Fp)`` (runtime
     float type), the rows of an image with a border of ``pad`` pixels (Hp = H + 2 pad,
     Wp = W + 2 pad); ``Dp`` arrives zeroed, so its border and its columns F..Fp stay 0."""
@@ -182,15 +182,15 @@ def pad_descriptors(D: ti.template(), Dp: ti.template(), H, W, pad):
 
 @ti.func
 def refine_pixel(
-    D11: ti.template(),
-    D21: ti.template(),
+    D11: template,
+    D21: template,
     b,
     row2,
     u_start,
     v_start,
     H,
     W,
-    radius: ti.template(),
+    radius: template,
     dmax,
 ):
     """Coarse-to-fine descriptor search of ``mslam_ref.matching.refine_matches``; returns (u, v).

@@ -7,24 +7,26 @@ runtime's ``default_fp``. Other kernels (matching, tracking, backend, BA) import
 
 import taichi as ti
 
+from mslam_fast._types import template
+
 EPS = 1e-6  # series threshold of Exp/Log, as lietorch
 
 
 @ti.func
-def load(A: ti.template(), i, n: ti.template()):
+def load(A: template, i, n: template):
     """Row ``i`` of a 2-D ndarray ``A`` as an ``n``-vector."""
     return ti.Vector([A[i, k] for k in ti.static(range(n))])
 
 
 @ti.func
-def store(A: ti.template(), i, v: ti.template()):
+def store(A: template, i, v: template):
     """Write the vector ``v`` into row ``i`` of a 2-D ndarray ``A``."""
     for k in ti.static(range(v.n)):
         A[i, k] = v[k]
 
 
 @ti.func
-def store_mat(A: ti.template(), i, M: ti.template()):
+def store_mat(A: template, i, M: template):
     """Write the matrix ``M`` into slice ``i`` of a 3-D ndarray ``A``."""
     for r in ti.static(range(M.n)):
         for c in ti.static(range(M.m)):

@@ -12,6 +12,8 @@ row (28 entries, :data:`TRI`), then the 7 entries of ``g``, then the cost.
 
 import taichi as ti
 
+from mslam_fast._types import template
+
 #: (row, col) of the 28 upper-triangle entries of a 7x7 matrix, row-major.
 TRI = tuple((a, b) for a in range(7) for b in range(a, 7))
 NACC = 36
@@ -30,7 +32,7 @@ def row(J, r):
 
 
 @ti.func
-def load3(A: ti.template(), k):
+def load3(A: template, k):
     """Point k of a flat (3N,) array: the stride 3 is a compile-time constant (a runtime
     (N, 3) shape would make LLVM version the vectorised pixel loop on a stride-1 check that
     fails, falling back to scalar code)."""
@@ -45,7 +47,7 @@ def huber(x, k):
 
 
 @ti.func
-def accumulate(acc: ti.template(), J, e, Wt, zero: ti.template()):
+def accumulate(acc: template, J, e, Wt, zero: template):
     """acc += Wt J J^T (upper triangle), Wt e J, 1/2 Wt e^2 — all in f64 (``J`` a 7-vector,
     ``e`` the residual in the sign convention of the caller). ``zero``: a static tuple of the
     entries of J known to be 0 for this row type (skipped at compile time)."""
@@ -63,7 +65,7 @@ def accumulate(acc: ti.template(), J, e, Wt, zero: ti.template()):
 
 
 @ti.func
-def store_acc(out: ti.template(), c, acc: ti.template()):
+def store_acc(out: template, c, acc: template):
     """Row ``c`` of ``out`` <- the 36 accumulators (two static loops of 18: no unroll warning)."""
     for t in ti.static(range(18)):
         out[c, t] = acc[t]
@@ -142,7 +144,7 @@ EYE3 = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
 
 
 @ti.func
-def accumulate_rays(acc: ti.template(), p, inv_d, e, si, hk):
+def accumulate_rays(acc: template, p, inv_d, e, si, hk):
     """acc += the three ray rows (local rows of psi(P), ray a: [(δ_ab − p_a p_b)/d | row a of
     −[p]x | 0], zero at the origin) with errors ``e`` (a 3-vector, the
     caller's sign), sqrt information ``si`` and per-row Huber weights w_a, in closed form (f64).

@@ -12,6 +12,7 @@ import taichi as ti
 
 from mslam_fast._kernels import ba as K
 from mslam_fast._runtime import ensure_init, prepare
+from mslam_fast._types import nd, template
 
 __all__ = [
     "bal_linearize",
@@ -21,11 +22,10 @@ __all__ = [
 ]
 
 Array = np.ndarray[Any, Any]
-nd = ti.types.ndarray()
 
 
 @ti.func
-def _load(A: ti.template(), i, n: ti.template()):
+def _load(A: template, i, n: template):
     return ti.Vector([A[i, k] for k in ti.static(range(n))])
 
 

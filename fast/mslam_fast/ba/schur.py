@@ -21,6 +21,7 @@ import taichi as ti
 
 from mslam_fast._kernels import ba as K
 from mslam_fast._runtime import ensure_init, prepare
+from mslam_fast._types import f64, nd, template
 from mslam_ref.ba.schur import BlockStructure
 
 __all__ = [
@@ -30,12 +31,10 @@ __all__ = [
 ]
 
 Array = np.ndarray[Any, Any]
-nd = ti.types.ndarray()
-f64 = ti.f64
 
 
 @ti.kernel
-def _W_k(Jc: nd, Jp: nd, w: nd, W: nd, d: ti.template(), k: ti.template()):
+def _W_k(Jc: nd, Jp: nd, w: nd, W: nd, d: template, k: template):
     for e in range(Jc.shape[0]):
         for i in ti.static(range(d)):
             for j in ti.static(range(3)):
@@ -46,8 +45,8 @@ def _W_k(Jc: nd, Jp: nd, w: nd, W: nd, d: ti.template(), k: ti.template()):
 
 
 @ti.kernel
-def _U_k(Jc: nd, w: nd, r: nd, ptr: nd, order: nd, U: nd, bc: nd, d: ti.template(),
-         k: ti.template()):  # fmt: skip
+def _U_k(Jc: nd, w: nd, r: nd, ptr: nd, order: nd, U: nd, bc: nd, d: template,
+         k: template):  # fmt: skip
     for c in range(U.shape[0]):  # one camera per item, its observations in CSR order
         acc = ti.Matrix.zero(f64, d, d)
         accb = ti.Vector.zero(f64, d)
@@ -65,7 +64,7 @@ def _U_k(Jc: nd, w: nd, r: nd, ptr: nd, order: nd, U: nd, bc: nd, d: ti.template
 
 
 @ti.kernel
-def _V_k(Jp: nd, w: nd, r: nd, ptr: nd, order: nd, V: nd, bl: nd, k: ti.template()):
+def _V_k(Jp: nd, w: nd, r: nd, ptr: nd, order: nd, V: nd, bl: nd, k: template):
     for p in range(V.shape[0]):
         acc = ti.Matrix.zero(f64, 3, 3)
         accb = ti.Vector.zero(f64, 3)
@@ -99,7 +98,7 @@ def _vinv_k(V: nd, lam: f64, Vinv: nd):
 
 
 @ti.kernel
-def _Y_k(W: nd, Vinv: nd, op: nd, bl: nd, Y: nd, t: nd, d: ti.template()):
+def _Y_k(W: nd, Vinv: nd, op: nd, bl: nd, Y: nd, t: nd, d: template):
     for e in range(W.shape[0]):
         p = op[e]
         for i in ti.static(range(d)):
@@ -124,7 +123,7 @@ def _rhs_k(bc: nd, t: nd, ptr: nd, order: nd, rhs: nd):
 
 @ti.kernel
 def _S_k(Y: nd, W: nd, U: nd, lam: f64, brow: nd, bcol: nd, pptr: nd, pa: nd, pb: nd, S: nd,
-         d: ti.template()):  # fmt: skip
+         d: template):  # fmt: skip
     for b in range(S.shape[0]):  # one d x d block per item: Y and W blocks are loaded once
         acc = ti.Matrix.zero(f64, d, d)
         for q in range(ti.cast(pptr[b], ti.i32), ti.cast(pptr[b + 1], ti.i32)):
@@ -144,7 +143,7 @@ def _S_k(Y: nd, W: nd, U: nd, lam: f64, brow: nd, bcol: nd, pptr: nd, pa: nd, pb
 
 @ti.kernel
 def _back_k(Vinv: nd, W: nd, bl: nd, dc: nd, ptr: nd, order: nd, oc: nd, dl: nd,
-            d: ti.template()):  # fmt: skip
+            d: template):  # fmt: skip
     for p in range(bl.shape[0]):
         acc = ti.Vector([ti.cast(bl[p, m], f64) for m in ti.static(range(3))])
         for q in range(ti.cast(ptr[p], ti.i32), ti.cast(ptr[p + 1], ti.i32)):

@@ -25,7 +25,7 @@ LandmarkVertex, MonoEdge, StereoEdge, CameraParams); Ceres examples/bal_problem.
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -70,6 +70,10 @@ class _Common:
 
     obs_cam: IntArray
     obs_pt: IntArray
+    # Set by _derive_masks in the subclasses' __post_init__.
+    edge_active: BoolArray
+    cam_free: BoolArray
+    point_free: BoolArray
 
     def _derive_masks(self, cam_fixed: BoolArray, point_fixed: BoolArray) -> None:
         M, P = len(cam_fixed), len(point_fixed)
@@ -81,13 +85,13 @@ class _Common:
         )
 
     def _mask_jacobians(self, r: FloatArray, Jc: FloatArray, Jp: FloatArray):
-        cam_off = ~self.cam_free[self.obs_cam]  # type: ignore[attr-defined]
-        pt_off = ~self.point_free[self.obs_pt]  # type: ignore[attr-defined]
+        cam_off = ~self.cam_free[self.obs_cam]
+        pt_off = ~self.point_free[self.obs_pt]
         if cam_off.any():
             Jc[cam_off] = 0.0
         if pt_off.any():
             Jp[pt_off] = 0.0
-        inactive = ~self.edge_active  # type: ignore[attr-defined]
+        inactive = ~self.edge_active
         if inactive.any():
             r[inactive] = 0.0
         return r, Jc, Jp
@@ -254,7 +258,7 @@ class PinholeProblem(_Common):
 
     def robust(self, s: FloatArray) -> tuple[FloatArray, FloatArray]:
         """``rho(s)`` and ``rho'(s)`` per edge, with the mono or stereo kernel."""
-        st = self.is_stereo
+        st = cast(BoolArray, self.is_stereo)  # (O,) after __post_init__
         rho_m, w_m = rho_and_weight(s, self.kernel_mono)
         if not st.any():
             return rho_m, w_m
@@ -269,7 +273,7 @@ class PinholeProblem(_Common):
             self.obs_cam,
             self.obs_pt,
             self.meas,
-            self.is_stereo.astype(np.float64),
+            cast(BoolArray, self.is_stereo).astype(np.float64),
         )
 
     def residuals(self, kernels: Any, cams: FloatArray, points: FloatArray) -> FloatArray:

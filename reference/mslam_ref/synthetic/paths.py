@@ -30,6 +30,7 @@ Public names, in reading order:
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from mslam_ref import sim3, so3
 from mslam_ref.conventions import FloatArray
@@ -40,11 +41,13 @@ __all__ = ["PATHS", "camera_path", "detour_indices", "jump_indices", "look_at"]
 PATHS = ("loop", "jump", "detour", "rotation", "forward")
 
 #: Seed stream of each path's random variations. ``detour`` shares ``jump``'s, so both start with
-#: the same arc (and ``detour`` is frame for frame what ``jump`` was before it became a kidnap).
+#: the same arc.
 _SEED_KEY = {"loop": 0, "jump": 1, "detour": 1, "rotation": 2, "forward": 3}
 
 
-def look_at(position: FloatArray, yaw: FloatArray, pitch: FloatArray, roll: FloatArray = 0.0):
+def look_at(
+    position: FloatArray, yaw: ArrayLike, pitch: ArrayLike, roll: ArrayLike = 0.0
+) -> FloatArray:
     """Camera-to-world poses looking along heading ``yaw`` (about world z) and ``pitch``.
 
     The optical axis is ``f = [cos p cos y, cos p sin y, sin p]``; the camera x axis is

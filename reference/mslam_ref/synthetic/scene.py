@@ -202,7 +202,7 @@ def shade(scene: Scene, P: FloatArray, sid: IntArray) -> FloatArray:
     off = sid[:, None] * np.array([7.31, 3.17, 5.03])
     q = P + off
     lat3, lat1 = scene.lattice, scene.lattice[..., :1]
-    n = 0.0
+    n = np.zeros((len(P), 1))
     for k, (freq, amp) in enumerate(_OCTAVES):
         # Colour variation at the coarse octaves, grey detail at the fine ones (cheaper).
         n = n + amp * _value_noise(lat3 if k < 2 else lat1, q * freq + 11.0 * amp)
