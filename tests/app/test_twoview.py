@@ -1,4 +1,4 @@
-"""Two-view prior (issue 15): geometry on synthetic pairs with known pose and depth."""
+"""Two-view prior: geometry on synthetic pairs with known pose and depth."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Two-view prior beyond DIS's range and on planar scenes (issue 15): known poses and depths."""
+"""Two-view prior beyond DIS's range and on planar scenes: known poses and depths."""
 
 from __future__ import annotations
 

@@ -3,8 +3,8 @@
 This project cannot ship MASt3R's 2.7 GB checkpoint; users who have it (and ``torch`` plus the
 ``naver/mast3r`` code on their path) get the genuine prior here. The adapter reproduces
 upstream's calls (docs/upstream.md §2): upstream's resize/crop to 512 and [-1, 1] normalisation
-(``pointmap.resize_img``, ``pointmap.network_input``), one encoder call per frame (cached like
-upstream's ``frame.feat``), ``_decoder(feat1, pos1, feat2, pos2)`` and
+(``pointmap.resize_img``, ``pointmap.network_input``), one encoder call per frame (kept in
+``cache``, a :class:`~mslam.priors.cache.ByteLRU` bounded by ``Mast3rConfig.cache_bytes``), ``_decoder(feat1, pos1, feat2, pos2)`` and
 ``_downstream_head(1|2, tokens, true_shape)``. Outputs are at the network resolution (e.g.
 512 x 384 for 640 x 480 input); ``network_frame`` gives the matching resized frame and
 ``network_intrinsics`` the matching ``K``.
@@ -26,7 +26,6 @@ Public names, in reading order:
 from __future__ import annotations
 
 import contextlib
-from collections import OrderedDict
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -36,6 +35,7 @@ import numpy as np
 from mslam.datasets.frame import Frame
 from mslam.datasets.images import resize_img
 from mslam.priors.base import PairPrediction
+from mslam.priors.cache import DEFAULT_CACHE_BYTES, ByteLRU
 from mslam_ref.conventions import FloatArray
 from mslam_ref.pointmap import intrinsics_after_resize, network_input
 
@@ -108,11 +108,13 @@ class Mast3rConfig:
         device: torch device string.
         apply_activations: the head returns raw values (True) or activated ones (False, as
             upstream's ``_downstream_head``).
+        cache_bytes: bound of the per-frame encoder-feature cache (``mslam.priors.cache``).
     """
 
     size: int = 512
     device: str = "cpu"
     apply_activations: bool = False
+    cache_bytes: int = DEFAULT_CACHE_BYTES
 
 
 class Mast3rUnavailable(ImportError, ValueError):
@@ -222,7 +224,8 @@ class Mast3rPrior:
         self.model = model
         self.cfg = cfg
         self.backend = backend if backend is not None else TorchBackend(cfg.device)
-        self._feat: OrderedDict[tuple, tuple] = OrderedDict()
+        #: Encoder features ``(feat, pos, true_shape)`` per frame, bounded in bytes.
+        self.cache = ByteLRU(cfg.cache_bytes)
 
     def network_frame(self, frame: Frame) -> Frame:
         """The frame resized and cropped to the network resolution (depth dropped)."""
@@ -236,17 +239,17 @@ class Mast3rPrior:
 
     def _encode(self, frame: Frame):
         key = (int(frame.index), frame.rgb.shape, hash(frame.rgb.tobytes()))
-        if key not in self._feat:
-            img, _ = resize_img(frame.rgb, self.cfg.size)
-            H, W = img.shape[:2]
-            b = self.backend
-            shape = b.to_tensor(np.array([[H, W]], dtype=np.int32))
-            with b.no_grad():
-                feat, pos, _ = self.model._encode_image(b.to_tensor(network_input(img)), shape)
-            self._feat[key] = (feat, pos, shape)
-            if len(self._feat) > 32:
-                self._feat.popitem(last=False)
-        return self._feat[key]
+        return self.cache.get(key, lambda: self._encoder(frame))
+
+    def _encoder(self, frame: Frame):
+        """``(feat, pos, true_shape)`` of upstream's ``_encode_image`` on the network input."""
+        img, _ = resize_img(frame.rgb, self.cfg.size)
+        H, W = img.shape[:2]
+        b = self.backend
+        shape = b.to_tensor(np.array([[H, W]], dtype=np.int32))
+        with b.no_grad():
+            feat, pos, _ = self.model._encode_image(b.to_tensor(network_input(img)), shape)
+        return feat, pos, shape
 
     def _decode(self, enc1, enc2):
         """Upstream mast3r_utils.py::decoder: both heads on float tokens."""
