@@ -15,9 +15,11 @@ class StandInMast3r:
 
     def __init__(self) -> None:
         self.calls: list[str] = []
+        self.inputs: list[np.ndarray] = []  # the encoder's input images (1, 3, H, W)
 
     def _encode_image(self, img, true_shape):
         self.calls.append("encode")
+        self.inputs.append(np.array(img))
         H, W = (int(x) for x in np.asarray(true_shape)[0])
         assert img.shape == (1, 3, H, W) and -1.0 <= img.min() and img.max() <= 1.0
         feat = img[:, :, ::16, ::16].reshape(1, 3, -1).transpose(0, 2, 1)  # (1, HW/256, 3)
