@@ -94,6 +94,8 @@ class FakeTorch:
 _GOOD_MODEL = """
 from stand_ins import StandInMast3r
 
+print("Warning, a note the mast3r code prints at import")
+
 
 class AsymmetricMASt3R(StandInMast3r):
     @classmethod
@@ -185,6 +187,26 @@ def test_bad_checkpoints_fail_at_load_in_one_line(tmp_path, fake_install, conten
     assert not isinstance(exc.value, mast3r_load.Mast3rUnavailable)
 
 
+def test_real_torch_checkpoints_are_read_and_checked(tmp_path):
+    torch = pytest.importorskip("torch")
+    weights = {k: torch.zeros(2) for k in _MASt3R["model"]}
+    good = tmp_path / "mast3r.pth"
+    torch.save({"args": _MASt3R["args"], "model": weights}, good)
+    ckpt = mast3r_load.read_checkpoint(good, torch)  # memory-mapped
+    mast3r_load.check_checkpoint(ckpt, good)
+    dust3r = tmp_path / "dust3r.pth"
+    torch.save(
+        {"args": _DUSt3R["args"], "model": {"downstream_head1.dpt.w": torch.zeros(2)}}, dust3r
+    )
+    with pytest.raises(ValueError, match="no descriptor heads"):
+        mast3r_load.check_checkpoint(mast3r_load.read_checkpoint(dust3r, torch), dust3r)
+    broken = tmp_path / "broken.pth"
+    broken.write_bytes(good.read_bytes()[:200])  # a truncated download
+    with pytest.raises(ValueError) as exc:
+        mast3r_load.read_checkpoint(broken, torch)
+    assert "not a readable PyTorch checkpoint" in _one_line(exc)
+
+
 def test_network_that_cannot_be_built_fails_in_one_line(tmp_path, fake_install):
     fake_install(
         _GOOD_MODEL.replace(
@@ -199,7 +221,10 @@ def test_network_that_cannot_be_built_fails_in_one_line(tmp_path, fake_install):
 @pytest.mark.parametrize(
     "source, expected",
     [
-        ("import einops\n", "the Python module 'einops', which is not installed"),
+        (
+            "import einops\n",
+            "mast3r cannot be imported: the Python module 'einops' is not installed (pip",
+        ),
         ("import huggingface_hub.utils\n", "'huggingface_hub"),
         (None, "the Python module 'mast3r"),  # 'mast3r' or 'mast3r.model
         (

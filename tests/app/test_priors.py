@@ -490,5 +490,7 @@ def test_mast3r_adapter_with_stand_in_torch_module() -> None:
     again = prior.pair(seq[0], seq[1])
     np.testing.assert_array_equal(again.X_ji, pred.X_ji)  # deterministic
     assert net.encoded == 2  # encoder outputs cached per frame
+    feats = [t for enc in (prior._encode(seq[0]), prior._encode(seq[1])) for t in enc]
+    assert prior.cache.bytes == sum(t.nbytes for t in feats) > 0  # tensors count their bytes
     X, C = prior.mono(seq[2])
     assert X.shape == (384, 512, 3) and np.all(C >= 1.0)

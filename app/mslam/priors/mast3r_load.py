@@ -13,8 +13,9 @@ with every failure turned into one line (a ``ValueError``, which the CLI prints 
    ``args`` (whose ``model`` string upstream instantiates) and ``model`` weights that include
    the local-feature (descriptor) heads, ``downstream_head{1,2}.head_local_features.*``:
    a DUSt3R checkpoint has the same backbone but no descriptors, and is refused here;
-4. the network is built and moved to the device with stdout captured, so ``--quiet`` runs and
-   JSON output stay clean.
+4. the network is built and moved to the device. What the mast3r code prints on stdout (at
+   import and while building) is captured and discarded, so ``--quiet`` runs and JSON output
+   stay clean.
 
 Public names, in reading order:
     Mast3rUnavailable, import_torch, import_model_class, read_checkpoint, check_checkpoint,
@@ -84,8 +85,7 @@ def import_model_class() -> Any:
         else:
             where = "pip install -e '.[mast3r]'"
         raise Mast3rUnavailable(
-            f"the MASt3R prior needs the Python module '{name}', which is not installed "
-            f"({where}); {INSTALL_HINT}"
+            f"mast3r cannot be imported: the Python module '{name}' is not installed ({where})"
         ) from None
     except ImportError as exc:
         raise Mast3rUnavailable(f"mast3r cannot be imported: {_one_line(exc)}") from None
@@ -144,9 +144,12 @@ def load_mast3r(checkpoint: str | Path, device: str = "cpu") -> Any:
     if not path.is_file():
         raise FileNotFoundError(f"{path}: MASt3R checkpoint not found; {INSTALL_HINT}")
     torch = import_torch()
-    model_class = import_model_class()
+    # The mast3r code prints on stdout: a note at import (no compiled RoPE2D), the model's
+    # args and the weight-key report when building it. It is discarded.
+    with contextlib.redirect_stdout(io.StringIO()):
+        model_class = import_model_class()
     check_checkpoint(read_checkpoint(path, torch), path)
-    with contextlib.redirect_stdout(io.StringIO()):  # upstream prints the args and key report
+    with contextlib.redirect_stdout(io.StringIO()):
         try:
             return model_class.from_pretrained(str(path)).to(device).eval()
         except Exception as exc:
