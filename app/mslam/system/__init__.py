@@ -69,6 +69,7 @@ def run_slam(
     progress: bool = False,
     system: SlamSystem | None = None,
     skip_bad_frames: bool = False,
+    observer: Any = None,
 ) -> tuple[SlamSystem, dict[str, Any]]:
     """Run the SLAM loop over every frame of ``source``.
 
@@ -88,6 +89,8 @@ def run_slam(
         progress: show a tqdm progress bar on stderr.
         system: continue an existing system (default: a new one).
         skip_bad_frames: skip unreadable frames instead of raising.
+        observer: called as ``observer.after_frame(i, frame, system, status)`` after every
+            processed frame (``mslam.export.observer.SystemTap``), or None.
 
     Returns:
         the system (keyframes, graph, per-frame poses, stats) and ``meta`` (source, prior,
@@ -127,6 +130,8 @@ def run_slam(
                     _skip(system, skipped, source.name, i, exc)
                 else:
                     status = system.process(frame)
+                    if observer is not None:
+                        observer.after_frame(i, frame, system, status)
                     if bar is not None:
                         bar.set_postfix(kf=len(system.keyframes), mode=system.mode.name,
                                         last=status, refresh=False)  # fmt: skip
