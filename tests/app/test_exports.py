@@ -223,3 +223,17 @@ def test_spawn_without_a_display_records_the_file_and_warns(tmp_path, monkeypatc
     rec.on_frame(0, np.zeros((4, 6, 3), np.uint8), None, "lost")
     rec.close()
     assert _texts(_chunks(tmp_path / "r.rrd")["/status"]) == ["frame 0: lost"]
+
+
+def test_given_intrinsics_are_written_verbatim(tmp_path):
+    pycolmap = pytest.importorskip("pycolmap")
+    K = intrinsics_from_fov(64, 48, 70.0)
+    calib = tmp_path / "calib.yaml"
+    fx, cx, cy = float(K[0, 0]), float(K[0, 2]), float(K[1, 2])
+    calib.write_text(f"width: 64\nheight: 48\ncalibration: [{fx!r}, {fx!r}, {cx!r}, {cy!r}]\n")
+    out = tmp_path / "O"
+    rc = _run(out, "synthetic:loop:6:64x48", "--calib", str(calib), "--colmap", str(out / "c"))
+    assert rc == 0
+    cam = pycolmap.Reconstruction(str(out / "c")).cameras[1]
+    np.testing.assert_allclose(cam.params, [fx, fx, cx + 0.5, cy + 0.5], rtol=1e-12)
+    assert "# Intrinsics: given" in (out / "c" / "cameras.txt").read_text()

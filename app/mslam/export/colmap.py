@@ -60,6 +60,7 @@ class ColmapModel:
         xyz: (P, 3) points; rgb: (P, 3) uint8; error: (P,) reprojection error in pixels;
         point_image: (P,) id of the image observing each point; point_idx: (P,) its index in
         that image's observations. Point ``p`` has id ``p + 1``.
+        camera_origin: where the intrinsics came from (a comment in ``cameras.txt``).
     """
 
     camera: tuple[int, int, float, float, float, float]
@@ -74,6 +75,7 @@ class ColmapModel:
     error: FloatArray = field(default_factory=lambda: np.zeros(0))
     point_image: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     point_idx: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    camera_origin: str = ""
 
 
 def _world_to_camera(T_WC: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -165,7 +167,8 @@ def write_colmap_text(out_dir: str | Path, model: ColmapModel) -> None:
     """``cameras.txt``, ``images.txt``, ``points3D.txt`` (COLMAP's text model)."""
     out_dir = Path(out_dir)
     W, H, fx, fy, cx, cy = model.camera
-    write_atomic(out_dir / "cameras.txt", "# CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n"
+    origin = f"# Intrinsics: {model.camera_origin}\n" if model.camera_origin else ""
+    write_atomic(out_dir / "cameras.txt", f"# CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n{origin}"
                  f"# Number of cameras: 1\n1 PINHOLE {W} {H} {fx!r} {fy!r} {cx!r} {cy!r}\n")  # fmt: skip
     lines = ["# IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME",
              "#   POINTS2D[] as (X, Y, POINT3D_ID)", f"# Number of images: {len(model.names)}"]  # fmt: skip
@@ -218,16 +221,23 @@ def write_colmap_binary(out_dir: str | Path, model: ColmapModel) -> None:
 
 
 def write_colmap(
-    out_dir: str | Path, system: Any, sequence: Any, K: FloatArray, all_frames: bool = False
+    out_dir: str | Path,
+    system: Any,
+    sequence: Any,
+    K: FloatArray,
+    all_frames: bool = False,
+    origin: str = "",
 ) -> ColmapModel:
     """Write the text and binary model and the images into ``out_dir``; returns the model.
 
     Images of keyframes come from the keyframes; those of other frames are read again from
-    ``sequence`` and resized to the pointmap resolution.
+    ``sequence`` and resized to the pointmap resolution. ``origin`` (where ``K`` came from)
+    becomes a comment in ``cameras.txt``.
     """
     from mslam.export.observer import keyframe_colours
 
     model = colmap_model(system, K, all_frames)
+    model.camera_origin = origin
     out_dir = Path(out_dir)
     kf_of = {int(kf.frame.index): k for k, kf in enumerate(system.keyframes)}
     W, H = model.camera[:2]

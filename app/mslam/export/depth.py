@@ -16,7 +16,8 @@ Files in ``depth/`` (``NNNNNN`` = the frame index, six digits):
 * ``NNNNNN.npy`` — float32 (H, W) depth, 0 where no point landed;
 * ``NNNNNN_conf.npy`` — float32 (H, W) average confidence of the point that won, 0 where none;
 * ``frames.txt`` — ``index timestamp keyframe tx ty tz qx qy qz qw`` per frame;
-* ``intrinsics.txt`` — ``width height fx fy cx cy`` (pixel-centre convention).
+* ``intrinsics.txt`` — ``width height fx fy cx cy`` (pixel-centre convention), after a
+  ``#`` line saying whether they were given or estimated.
 
 Public names, in reading order:
     render_depth, write_depth_maps
@@ -90,13 +91,14 @@ def _frame_rows(system: Any) -> list[tuple[int, float, int, FloatArray]]:
     return rows
 
 
-def write_depth_maps(out_dir: str | Path, system: Any, K: FloatArray) -> int:
+def write_depth_maps(out_dir: str | Path, system: Any, K: FloatArray, origin: str = "") -> int:
     """Write the depth files of every posed frame into ``out_dir``; returns how many frames.
 
     Args:
         out_dir: the ``depth/`` folder (created).
         system: the finished :class:`~mslam.system.SlamSystem`.
         K: (3, 3) intrinsics at the pointmap resolution.
+        origin: where they came from (a comment line in ``intrinsics.txt``).
     """
     from mslam.export.observer import _keyframe_pointmap
 
@@ -118,7 +120,8 @@ def write_depth_maps(out_dir: str | Path, system: Any, K: FloatArray) -> int:
         lines.append(" ".join([str(index), repr(ts), str(k), *(repr(float(x)) for x in (*t, *q))]))
     write_atomic(out_dir / "frames.txt", "\n".join(lines) + "\n")
     fx, fy, cx, cy = (float(K[r, c]) for r, c in ((0, 0), (1, 1), (0, 2), (1, 2)))
-    write_atomic(out_dir / "intrinsics.txt", f"{W} {H} {fx!r} {fy!r} {cx!r} {cy!r}\n")
+    head = f"# width height fx fy cx cy; {origin}\n" if origin else ""
+    write_atomic(out_dir / "intrinsics.txt", f"{head}{W} {H} {fx!r} {fy!r} {cx!r} {cy!r}\n")
     return len(lines)
 
 

@@ -47,6 +47,9 @@ def _inside(out: Path, path: str | None, flag: str) -> Path | None:
     return rel
 
 
+_ESTIMATED = "estimated from the keyframe pointmaps (mslam.export.camera)"
+
+
 @dataclass
 class ExportRequest:
     """The exports of one ``mslam run``; paths are relative to the output set.
@@ -65,6 +68,11 @@ class ExportRequest:
     colmap: Path | None = None
     colmap_all_frames: bool = False
     depth: bool = False
+
+    def __post_init__(self) -> None:
+        self._recorder: Any = None
+        self._tap: Any = None
+        self._tmp: Path | None = None
 
     @classmethod
     def from_args(cls, out: Path, args: Any) -> ExportRequest:
@@ -95,7 +103,6 @@ class ExportRequest:
     def recording(self, K: Any = None) -> Iterator[Any]:
         """Yield a :class:`~mslam.export.observer.SystemTap` feeding the recorder (None when no
         recording was asked for); the temporary file is removed on leaving, whatever happens."""
-        self._recorder = self._tap = None
         if self.rerun is None and not self.spawn:
             yield None
             return
@@ -115,12 +122,13 @@ class ExportRequest:
     def write(self, stage: Path, system: Any, sequence: Any) -> dict[str, Any]:
         """Write the exports into the staged set ``stage``; returns what was written."""
         done: dict[str, Any] = {}
-        K = None
+        K, origin = None, ""
         if self.colmap is not None or self.depth:
             from mslam.export.camera import run_intrinsics
 
             if len(system.keyframes):
-                K, _ = run_intrinsics(system)
+                K, given = run_intrinsics(system)
+                origin = "given (calibrated mode)" if given else _ESTIMATED
         if self._tap is not None:
             self._finish_recording(system, sequence)
             if self.rerun is not None:
@@ -130,12 +138,14 @@ class ExportRequest:
         if self.colmap is not None and K is not None:
             from mslam.export.colmap import write_colmap
 
-            model = write_colmap(stage / self.colmap, system, sequence, K, self.colmap_all_frames)
+            model = write_colmap(
+                stage / self.colmap, system, sequence, K, self.colmap_all_frames, origin
+            )
             done["colmap"] = {"images": len(model.names), "points3D": len(model.xyz)}
         if self.depth and K is not None:
             from mslam.export.depth import write_depth_maps
 
-            done["depth"] = write_depth_maps(stage / "depth", system, K)
+            done["depth"] = write_depth_maps(stage / "depth", system, K, origin)
         return done
 
     def _finish_recording(self, system: Any, sequence: Any) -> None:
