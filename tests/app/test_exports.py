@@ -218,6 +218,7 @@ def test_spawn_without_a_display_records_the_file_and_warns(tmp_path, monkeypatc
     monkeypatch.delenv("DISPLAY", raising=False)
     monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
     monkeypatch.setattr("sys.platform", "linux")
+    monkeypatch.setattr("mslam.export.rerun_log._viewer_listening", lambda port=None: False)
     with pytest.warns(RuntimeWarning, match="no display"):
         rec = RerunRecorder(tmp_path / "r.rrd", spawn=True)
     rec.on_frame(0, np.zeros((4, 6, 3), np.uint8), None, "lost")

@@ -40,6 +40,8 @@ from mslam_ref.conventions import FloatArray
 
 __all__ = ["RerunRecorder"]
 
+#: The port a Rerun viewer listens on by default (``rerun`` / ``rerun.spawn``).
+VIEWER_PORT = 9876
 _EDGE_ENTITY = {"consecutive": "consecutive", "retrieval": "loop_closure", "reloc": "reloc"}
 _EDGE_COLOUR = {
     "consecutive": (120, 120, 120),
@@ -65,8 +67,8 @@ class RerunRecorder:
         path: the ``.rrd`` file to write (None: no file).
         K: (3, 3) intrinsics at the pointmap resolution when known (calibrated mode); else
             estimated from the first keyframe's pointmap.
-        spawn: also start a Rerun viewer and stream to it, when a display is available
-            (otherwise a warning, and the file only).
+        spawn: also stream to a Rerun viewer: the one listening on :data:`VIEWER_PORT`, or a
+            new one when a display is available (otherwise a warning, and the file only).
         max_points: at most this many points per keyframe pointmap.
         application_id: the recording's application id.
     """
@@ -82,12 +84,13 @@ class RerunRecorder:
         rr = self.rr = _import_rerun()
         self.rec = rr.RecordingStream(application_id)
         sinks = [rr.FileSink(str(path))] if path is not None else []
-        if spawn and _has_display():
-            self.rec.spawn(connect=False)
+        if spawn and (_viewer_listening() or _has_display()):
+            self.rec.spawn(connect=False)  # connects to a running viewer instead of a second one
             sinks.append(rr.GrpcSink())
         elif spawn:
-            warnings.warn("--rerun-spawn: no display; open the recording later with `rerun "
-                          "FILE.rrd`", RuntimeWarning, stacklevel=2)  # fmt: skip
+            warnings.warn("--rerun-spawn: no display and no viewer listening on port "
+                          f"{VIEWER_PORT}; open the recording later with `rerun FILE.rrd`",
+                          RuntimeWarning, stacklevel=2)  # fmt: skip
         if sinks:
             self.rec.set_sinks(*sinks)
         self.K = None if K is None else np.asarray(K, np.float64)
@@ -232,6 +235,15 @@ def _blueprint(P: FloatArray):
         ),
         collapse_panels=True,
     )
+
+
+def _viewer_listening(port: int | None = None) -> bool:
+    """Whether something accepts connections on the local viewer port."""
+    import socket
+
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
+        sock.settimeout(0.2)
+        return sock.connect_ex(("127.0.0.1", VIEWER_PORT if port is None else port)) == 0
 
 
 def _has_display() -> bool:
