@@ -49,17 +49,22 @@ _PINHOLE_MODEL_ID = 1
 
 @dataclass
 class ColmapModel:
-    """A COLMAP model in memory; I images, P points.
+    """A COLMAP model in memory; I images (image ``n`` has id ``n + 1``), P points (point
+    ``p`` has id ``p + 1``).
 
     Attributes:
         camera: (width, height, fx, fy, cx, cy) in COLMAP's pixel convention.
-        names: (I,) image names; image ``n`` has id ``n + 1``.
-        qvec: (I, 4) world-to-camera rotations, ``qw qx qy qz``; tvec: (I, 3).
+        names: (I,) image names.
+        qvec: (I, 4) world-to-camera rotations, ``qw qx qy qz``.
+        tvec: (I, 3) world-to-camera translations.
         frame_index: (I,) the frame index of each image.
-        xy: per image, (M_n, 2) observed pixel positions; point_ids: per image, (M_n,) ids.
-        xyz: (P, 3) points; rgb: (P, 3) uint8; error: (P,) reprojection error in pixels;
-        point_image: (P,) id of the image observing each point; point_idx: (P,) its index in
-        that image's observations. Point ``p`` has id ``p + 1``.
+        xy: per image, (M_n, 2) observed pixel positions.
+        point_ids: per image, (M_n,) the ids of the observed points.
+        xyz: (P, 3) points.
+        rgb: (P, 3) uint8 colours.
+        error: (P,) reprojection error in pixels.
+        point_image: (P,) id of the image observing each point.
+        point_idx: (P,) the point's index among that image's observations.
         camera_origin: where the intrinsics came from (a comment in ``cameras.txt``).
     """
 

@@ -56,9 +56,10 @@ class ExportRequest:
 
     Attributes:
         out: the ``--out`` folder.
-        rerun: the recording's path in the set, or None; spawn: also stream to a viewer.
-        colmap: the COLMAP folder in the set, or None; colmap_all_frames: one image per posed
-            frame instead of per keyframe.
+        rerun: the recording's path in the set, or None.
+        spawn: also stream to a viewer.
+        colmap: the COLMAP folder in the set, or None.
+        colmap_all_frames: one image per posed frame instead of per keyframe.
         depth: write ``depth/`` (``mslam.export.depth``).
     """
 
