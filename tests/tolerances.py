@@ -60,9 +60,10 @@ def tol(module: str, fp: str) -> dict[str, float]:
     """``rtol``/``atol`` keyword arguments for ``np.testing.assert_allclose``."""
     return TOL[(module, fp)]
 
+
 #: Exports (mslam.export), measured 2026-11-26 on ``synthetic:loop:24:64x48``:
 #: median relative difference between a frame's depth map and the PLY seen from the same pose,
-#: worst frame 0.035 (keyframes 2e-4, the millimetre rounding); the brief's bound is 5 %.
+#: worst frame 0.035 (keyframes 2e-4, the millimetre rounding); the bound asserted is 5 %.
 DEPTH_VS_PLY_MEDIAN_REL = 0.05
 #: COLMAP image poses against keyframes.txt (both written as shortest round-trip floats):
 #: worst measured 4e-16.
