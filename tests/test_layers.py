@@ -183,6 +183,7 @@ APP_LAYERS: tuple[tuple[str, ...], ...] = (
     ("mslam.datasets", "mslam.priors"),
     ("mslam.config", "mslam.config_ranges"),
     ("mslam.system",),
+    ("mslam.export",),
     ("mslam.commands", "mslam.cli"),
 )
 

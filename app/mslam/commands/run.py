@@ -101,7 +101,35 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--overwrite", action="store_true", help="replace a non-empty output folder")
     p.add_argument("--skip-bad-frames", action="store_true",
                    help="skip unreadable frames (listed in summary.json) instead of exit 2")  # fmt: skip
+    _register_exports(p)
     p.set_defaults(func=run)
+
+
+def _register_exports(p: argparse.ArgumentParser) -> None:
+    """The options of ``mslam.export`` (docs/outputs.md); every path lies inside --out."""
+    p.add_argument(
+        "--rerun",
+        metavar="FILE.rrd",
+        help="record the run for the Rerun viewer "
+        "(a file inside --out, e.g. OUT/run.rrd; needs the rerun extra)",
+    )
+    p.add_argument(
+        "--rerun-spawn",
+        action="store_true",
+        help="also stream the run to a Rerun viewer (when a display is available)",
+    )
+    p.add_argument("--colmap", metavar="DIR", help="write a COLMAP model into DIR (inside --out)")
+    p.add_argument(
+        "--colmap-images",
+        choices=("keyframes", "frames"),
+        default="keyframes",
+        help="COLMAP images: the keyframes (default) or every posed frame",
+    )
+    p.add_argument(
+        "--depth",
+        action="store_true",
+        help="write a depth map of every posed frame into OUT/depth/",
+    )
 
 
 #: Longest image side the RGB-D prior may run at without asking (a whole frame costs ~0.2 s at
@@ -127,6 +155,7 @@ def run(args: argparse.Namespace) -> int:
     """Handler of ``mslam run``; returns the exit code."""
     from mslam.commands.outdir import check_target, staged_folder
     from mslam.config import config_to_dict, load_config
+    from mslam.export import ExportRequest
     from mslam.kernels import load_kernels
     from mslam.system import open_source, run_slam, write_outputs
 
@@ -143,6 +172,7 @@ def run(args: argparse.Namespace) -> int:
         f"local_opt.use_cuda={str(args.device == 'cuda').lower()}",
         f"mast3r_prior.device={args.device}",
     ]
+    exports = ExportRequest.from_args(out, args)
     cfg = load_config(args.config, overrides)
     source = open_source(args.source, cfg, args.calib, args.prior, args.max_frames)
     if args.config is None and source.prior_name in ("rgbd", "twoview"):
@@ -159,17 +189,18 @@ def run(args: argparse.Namespace) -> int:
     if args.baseline and not source.sequence.has_depth:
         raise UserError(f"--baseline: {source.name} has no depth images (the RGB-D odometry "
                         "baseline needs them)")  # fmt: skip
-    system, meta = run_slam(
-        source, cfg, kernels, progress=not args.quiet, skip_bad_frames=args.skip_bad_frames
-    )
-    if args.baseline and not meta["interrupted"]:
-        from mslam.baselines import rgbd_odometry_ate
+    with exports.recording(source.K if cfg.use_calib else None) as tap:
+        system, meta = run_slam(source, cfg, kernels, progress=not args.quiet,
+                                skip_bad_frames=args.skip_bad_frames, observer=tap)  # fmt: skip
+        if args.baseline and not meta["interrupted"]:
+            from mslam.baselines import rgbd_odometry_ate
 
-        meta["baseline"] = rgbd_odometry_ate(source.sequence)
-    meta["config"] = config_to_dict(cfg)
-    meta["device"] = args.device
-    with staged_folder(out, args.overwrite) as tmp:
-        summary = write_outputs(tmp, system, source.sequence, meta)
+            meta["baseline"] = rgbd_odometry_ate(source.sequence)
+        meta["config"] = config_to_dict(cfg)
+        meta["device"] = args.device
+        with staged_folder(out, args.overwrite) as tmp:
+            summary = write_outputs(tmp, system, source.sequence, meta)
+            exports.write(tmp, system, source.sequence)
     if not args.quiet:
         _print_summary(summary, out)
     return 130 if meta["interrupted"] else 0

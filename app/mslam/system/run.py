@@ -1,7 +1,7 @@
 """The frame loop (upstream main.py's ``__main__``): every frame of a source through the system.
 
 Public names, in reading order:
-    run_slam
+    FrameObserver, run_slam
 """
 
 from __future__ import annotations
@@ -14,17 +14,26 @@ import time
 import warnings
 from collections.abc import Iterator
 from types import FrameType
-from typing import Any
+from typing import Any, Protocol
 
 import cv2
 
 from mslam.config import SlamConfig
+from mslam.datasets.frame import Frame
 from mslam.kernels import KernelSet
 from mslam.system.frontend import SlamSystem
 from mslam.system.sources import Source
-from mslam.system.state import Mode
+from mslam.system.state import FrameStatus, Mode
 
-__all__ = ["run_slam"]
+__all__ = ["FrameObserver", "run_slam"]
+
+
+class FrameObserver(Protocol):
+    """Something that looks at the system after every frame (a live recording)."""
+
+    def after_frame(self, i: int, frame: Frame, system: SlamSystem, status: FrameStatus) -> None:
+        """Called after frame ``i`` was processed with its status."""
+        ...
 
 
 def run_slam(
@@ -34,6 +43,7 @@ def run_slam(
     progress: bool = False,
     system: SlamSystem | None = None,
     skip_bad_frames: bool = False,
+    observer: FrameObserver | None = None,
 ) -> tuple[SlamSystem, dict[str, Any]]:
     """Run the SLAM loop over every frame of ``source``.
 
@@ -53,6 +63,8 @@ def run_slam(
         progress: show a tqdm progress bar on stderr.
         system: continue an existing system (default: a new one).
         skip_bad_frames: skip unreadable frames instead of raising.
+        observer: called as ``observer.after_frame(i, frame, system, status)`` after every
+            processed frame (``mslam.export.observer.SystemTap``: the Rerun recording), or None.
 
     Returns:
         the system (keyframes, graph, per-frame poses, stats) and ``meta`` (source, prior,
@@ -92,6 +104,8 @@ def run_slam(
                     _skip(system, skipped, source.name, i, exc)
                 else:
                     status = system.process(frame)
+                    if observer is not None:
+                        observer.after_frame(i, frame, system, status)
                     if bar is not None:
                         bar.set_postfix(kf=len(system.keyframes), mode=system.mode.name,
                                         last=status, refresh=False)  # fmt: skip
