@@ -170,7 +170,7 @@ def test_cycle_finder_finds_a_cycle() -> None:
 #: The application's own layers, bottom to top (docs/architecture.md): a module imports only
 #: from its own layer or below. The package ``mslam`` itself (its lazy public names) is the API.
 APP_LAYERS: tuple[tuple[str, ...], ...] = (
-    ("mslam.atomic",),
+    ("mslam.atomic", "mslam.errors", "mslam.outdir"),
     (
         "mslam.formats",
         "mslam.bal",
@@ -184,6 +184,7 @@ APP_LAYERS: tuple[tuple[str, ...], ...] = (
     ("mslam.config", "mslam.config_ranges"),
     ("mslam.system",),
     ("mslam.export",),
+    ("mslam.api",),
     ("mslam.commands", "mslam.cli"),
 )
 

@@ -10,12 +10,17 @@ Quick use (the same as ``mslam run synthetic:loop:40:96x72 --out runs/x``)::
 
     import mslam
 
+    result = mslam.run("synthetic:loop:40:96x72", out="runs/x")
+    result.summary["ate_rmse"]
+
+The pieces one by one (what ``mslam.run`` does inside)::
+
     cfg = mslam.load_config()
     source = mslam.open_source("synthetic:loop:40:96x72", cfg)
     system, meta = mslam.run_slam(source, cfg, mslam.load_kernels("fast"))
     mslam.write_outputs("runs/x", system, source.sequence, meta)
 
-Public names: load_config, load_kernels, open_source, run_slam, write_outputs.
+Public names: run, RunResult, load_config, load_kernels, open_source, run_slam, write_outputs.
 """
 
 from __future__ import annotations
@@ -24,9 +29,19 @@ from typing import Any
 
 __version__ = "0.1.0"
 
-__all__ = ["load_config", "load_kernels", "open_source", "run_slam", "write_outputs"]
+__all__ = [
+    "RunResult",
+    "load_config",
+    "load_kernels",
+    "open_source",
+    "run",
+    "run_slam",
+    "write_outputs",
+]
 
 _LAZY = {
+    "run": "mslam.api",
+    "RunResult": "mslam.api",
     "load_config": "mslam.config",
     "load_kernels": "mslam.kernels",
     "open_source": "mslam.system",

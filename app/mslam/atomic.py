@@ -9,7 +9,7 @@ One policy for every writer (the formats, a run's outputs, the commands):
   write to the same target (:func:`remove_stale`).
 
 Whole output *sets* (a run's folder) are staged the same way by
-``mslam.commands.outdir.staged_folder``. This module is the bottom of the application: it
+``mslam.outdir.staged_folder``. This module is the bottom of the application: it
 imports nothing from ``mslam``.
 
 Public names, in reading order:

@@ -295,7 +295,7 @@ def arm(mod, name):
         return f(*a, **k)
     setattr(mod, name, wrapped)
 arm(a, "write_atomic")  # before any writer imports it
-import mslam.commands.outdir as od
+import mslam.outdir as od
 import mslam.formats as mio
 from mslam.datasets import tum
 arm(mio, "write_tum"); arm(mio, "write_ply"); arm(od, "_move_into_place")

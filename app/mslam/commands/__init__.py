@@ -6,12 +6,9 @@ import json
 from typing import Any
 
 from mslam.atomic import write_atomic
+from mslam.errors import UserError
 
 __all__ = ["UserError", "print_json", "write_atomic"]
-
-
-class UserError(Exception):
-    """An error the user can fix; the CLI prints it as one line and exits with status 2."""
 
 
 def print_json(obj: dict[str, Any]) -> None:

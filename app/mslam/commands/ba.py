@@ -73,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
     if not args.problem.is_file():
         raise FileNotFoundError(f"{args.problem}: no such file")
     if args.out is not None:
-        from mslam.commands.outdir import check_target
+        from mslam.outdir import check_target
 
         check_target(args.out, args.overwrite, kind="file")
     problem = io.read_bal(args.problem)
@@ -87,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
     res = lm.optimize(problem, cfg, kernels)
     seconds = time.perf_counter() - t0
     if args.out is not None:
-        from mslam.commands.outdir import write_file_atomic
+        from mslam.outdir import write_file_atomic
 
         write_file_atomic(args.out, io.format_bal(res.problem), args.overwrite)
     print_json(

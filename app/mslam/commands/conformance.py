@@ -49,8 +49,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run_export(args: argparse.Namespace) -> int:
     """Write the golden set; prints a JSON summary."""
     from mslam.commands import print_json
-    from mslam.commands.outdir import check_target, staged_folder
     from mslam.conformance.export import write_golden_set
+    from mslam.outdir import check_target, staged_folder
 
     out = check_target(args.dir, args.overwrite, flag="DIR")
     with staged_folder(out, args.overwrite) as tmp:

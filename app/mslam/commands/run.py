@@ -11,7 +11,7 @@ SOURCE: nothing (the built-in synthetic ``loop``), ``synthetic:NAME[:FRAMES[:WxH
 TUM-layout folder, a 7-Scenes folder, an image folder or a video file. Everything that can be
 checked is checked before the first frame (config keys, calibration, prior); a bad input is
 one line on stderr, exit code 2, and no output file. The output set is written into a temporary
-folder beside ``--out`` and moved into place in one rename (``mslam.commands.outdir``); an
+folder beside ``--out`` and moved into place in one rename (``mslam.outdir``); an
 existing non-empty ``--out`` is refused unless ``--overwrite``. Ctrl-C stops at the next frame
 boundary, writes a complete set marked ``"interrupted": true`` and exits 130; a second Ctrl-C
 stops at once and leaves no output.
@@ -22,8 +22,6 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-
-from mslam.commands import UserError
 
 __all__ = ["register", "run"]
 
@@ -132,78 +130,33 @@ def _register_exports(p: argparse.ArgumentParser) -> None:
     )
 
 
-#: Longest image side the RGB-D prior may run at without asking (a whole frame costs ~0.2 s at
-#: 160x120 and ~0.8 s at 512x384 on 2 cores, benchmarks/RESULTS.md; more at the full size).
-RGBD_MAX_AUTO_SIDE = 320
-
-
-def _check_resolution(source, cfg) -> None:
-    """Refuse, before any work, to run the RGB-D prior at full resolution by accident."""
-    if source.prior_name != "rgbd" or cfg.dataset.long_side:
-        return
-    H, W = source.sequence[0].shape
-    if max(H, W) > RGBD_MAX_AUTO_SIDE:
-        raise UserError(
-            f"this config runs the RGB-D prior at the full {W}x{H} (dataset.long_side = 0), "
-            "about a second per frame on 2 CPU cores; add --set dataset.long_side=160 (the rgbd "
-            "config's working size), use --config rgbd_512 (the paper's 512 px), or "
-            f"--set dataset.long_side={max(H, W)} to insist"
-        )
-
-
 def run(args: argparse.Namespace) -> int:
-    """Handler of ``mslam run``; returns the exit code."""
-    from mslam.commands.outdir import check_target, staged_folder
-    from mslam.config import config_to_dict, load_config
+    """Handler of ``mslam run`` (:func:`mslam.api.run` and a printed summary); the exit code."""
+    from mslam.api import run as run_api
     from mslam.export import ExportRequest
-    from mslam.kernels import load_kernels
-    from mslam.system import open_source, run_slam, write_outputs
+    from mslam.outdir import check_target
 
     out = check_target(args.out, args.overwrite)
-    if args.source and Path(args.source).resolve().is_relative_to(out.resolve()):
-        raise UserError(f"--out {out}: contains SOURCE {args.source}; choose another folder")
-    if args.max_frames is not None and args.max_frames < 1:
-        raise UserError(f"--max-frames: must be >= 1, got {args.max_frames}")
-    from mslam.device import use_device
-
-    use_device(args.device, args.kernels, args.precision)  # before any work: no fallback
-    overrides = [  # one switch: the kernels' arch and the network's torch device
-        *args.overrides,
-        f"local_opt.use_cuda={str(args.device == 'cuda').lower()}",
-        f"mast3r_prior.device={args.device}",
-    ]
-    exports = ExportRequest.from_args(out, args)
-    cfg = load_config(args.config, overrides)
-    source = open_source(args.source, cfg, args.calib, args.prior, args.max_frames)
-    if args.config is None and source.prior_name in ("rgbd", "twoview"):
-        # The RGB-D prior's packaged default (configs/rgbd.yaml, docs/system.md): its working
-        # resolution and two tracking keys differ from base.yaml, so open the source again.
-        cfg = load_config(source.prior_name, overrides)
-        source = open_source(args.source, cfg, args.calib, args.prior, args.max_frames)
-    _check_resolution(source, cfg)
-    if args.calib is not None and not cfg.use_calib:
-        from dataclasses import replace
-
-        cfg = replace(cfg, use_calib=True)  # upstream: --calib forces use_calib
-    kernels = load_kernels(args.kernels)
-    if args.baseline and not source.sequence.has_depth:
-        raise UserError(f"--baseline: {source.name} has no depth images (the RGB-D odometry "
-                        "baseline needs them)")  # fmt: skip
-    with exports.recording(source.K if cfg.use_calib else None) as tap:
-        system, meta = run_slam(source, cfg, kernels, progress=not args.quiet,
-                                skip_bad_frames=args.skip_bad_frames, observer=tap)  # fmt: skip
-        if args.baseline and not meta["interrupted"]:
-            from mslam.baselines import rgbd_odometry_ate
-
-            meta["baseline"] = rgbd_odometry_ate(source.sequence)
-        meta["config"] = config_to_dict(cfg)
-        meta["device"] = args.device
-        with staged_folder(out, args.overwrite) as tmp:
-            summary = write_outputs(tmp, system, source.sequence, meta)
-            exports.write(tmp, system, source.sequence)
+    result = run_api(
+        args.source,
+        out,
+        config=args.config,
+        prior=args.prior,
+        calib=args.calib,
+        kernels=args.kernels,
+        precision=args.precision,
+        device=args.device,
+        max_frames=args.max_frames,
+        settings=args.overrides,
+        overwrite=args.overwrite,
+        progress=not args.quiet,
+        skip_bad_frames=args.skip_bad_frames,
+        baseline=args.baseline,
+        exports=ExportRequest.from_args(out, args),
+    )
     if not args.quiet:
-        _print_summary(summary, out)
-    return 130 if meta["interrupted"] else 0
+        _print_summary(result.summary, out)
+    return 130 if result.interrupted else 0
 
 
 def _print_summary(s: dict, out: Path) -> None:

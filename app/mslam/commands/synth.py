@@ -6,7 +6,7 @@ camera-to-world), ``calib.yaml`` (``width``, ``height``, ``calibration: [fx, fy,
 ``depth_scale``) and ``synth.json`` (name, seed, size, frames and, for the ``jump`` and
 ``detour`` paths, ``jump_indices``: the frames where the camera is relocated). All or nothing:
 the whole set is written into a temporary folder beside ``--out`` and moved into place in one
-rename (``mslam.commands.outdir``); a non-empty ``--out`` is refused unless ``--overwrite``.
+rename (``mslam.outdir``); a non-empty ``--out`` is refused unless ``--overwrite``.
 """
 
 from __future__ import annotations
@@ -44,9 +44,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Render and write the sequence; prints a JSON summary."""
-    from mslam.commands.outdir import check_target, staged_folder
     from mslam.datasets.synthetic import make_sequence
     from mslam.datasets.tum import write_tum_sequence
+    from mslam.outdir import check_target, staged_folder
     from mslam_ref.synthetic import PATHS, check_synthetic_size, detour_indices, jump_indices
 
     name = args.name.removeprefix("synthetic:")

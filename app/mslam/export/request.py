@@ -1,6 +1,6 @@
 """What ``mslam run --rerun/--colmap/--depth`` asks for, checked up front and written into the set.
 
-Every export lies inside the one output set of ``mslam run`` (``mslam.commands.outdir``):
+Every export lies inside the one output set of ``mslam run`` (``mslam.outdir``):
 
 * the Rerun recording streams, while the run goes, into a hidden temporary file beside
   ``--out`` (``.OUT.mslam-tmp-rerun-PID``, removed on any error and by the next run into the

@@ -1,4 +1,4 @@
-"""One output policy for ``run``, ``synth`` and ``ba`` (docs/reliability.md).
+"""One output policy for ``run``, ``synth``, ``ba`` and ``mslam.run`` (docs/reliability.md).
 
 * :func:`check_target` — before any work: the target must not lie below a regular file, must
   not be an existing non-empty folder (or an existing file, for a file target) unless
@@ -23,7 +23,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from mslam.atomic import remove_stale, temporary_name, write_atomic
-from mslam.commands import UserError
+from mslam.errors import UserError
 
 __all__ = ["check_target", "staged_folder", "write_file_atomic"]
 
