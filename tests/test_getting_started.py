@@ -93,3 +93,14 @@ def test_getting_started_runs_verbatim(tmp_path: Path) -> None:
         assert proc.returncode == 0, f"{block}\n{proc.stderr[-3000:]}"
     assert any(c.startswith("mslam run") for c in ran) and any("mslam eval" in c for c in ran)
     assert (tmp_path / "runs" / "demo" / "trajectory.txt").is_file()
+
+
+def test_notebooks_written_beside_the_tutorials_are_ignored_by_git() -> None:
+    """``jupytext --to notebook tutorials/NN_*.py`` (as the page says) leaves no untracked file."""
+    git = shutil.which("git")
+    if git is None or not (ROOT / ".git").exists():
+        pytest.skip("not a git checkout")
+    for path in sorted((ROOT / "tutorials").glob("[0-9][0-9]_*.py")):
+        notebook = path.with_suffix(".ipynb").relative_to(ROOT)
+        proc = subprocess.run([git, "check-ignore", "-q", str(notebook)], cwd=ROOT)
+        assert proc.returncode == 0, f"{notebook} is not ignored by .gitignore"
