@@ -11,8 +11,9 @@ fails. Every page's ``<script src>``, ``<link href>`` and ``<img src>`` must be 
 
 Rendering: tutorial 02 is opened in headless Chromium (``apt-get install chromium``; the test
 skips without it), served by ``http.server`` on 127.0.0.1 with every other host unresolvable,
-and the DOM after MathJax ran must hold at least :data:`MIN_FORMULAS` typeset formulas and no
-raw TeX (``$...$``, ``\\(...\\)``) in its text.
+every file it asks for must be there (MathJax's fonts included), and the DOM after MathJax ran
+must hold at least :data:`MIN_FORMULAS` typeset formulas and no raw TeX (``$...$``,
+``\\(...\\)``) in its text.
 """
 
 from __future__ import annotations
@@ -180,10 +181,24 @@ def _chromium() -> str | None:
     return next((p for p in map(shutil.which, ("chromium", "chromium-browser")) if p), None)
 
 
+class _Handler(http.server.SimpleHTTPRequestHandler):
+    """Serves the site quietly and records ``(path, status)`` of every request."""
+
+    requests: list[tuple[str, int]]
+
+    def log_request(self, code="-", size="-") -> None:
+        self.requests.append((self.path, int(code)))
+
+    def log_message(self, *args) -> None:
+        pass
+
+
 def _render(site: Path, page: str, tmp_path: Path) -> str:
-    """The DOM of ``page`` after its scripts ran in headless Chromium, served from 127.0.0.1."""
-    handler = functools.partial(http.server.SimpleHTTPRequestHandler, directory=str(site))
-    handler.log_message = lambda *a: None
+    """The DOM of ``page`` after its scripts ran in headless Chromium, served from 127.0.0.1;
+    fails if the page asked the server for a file it does not have."""
+    requests: list[tuple[str, int]] = []
+    handler = type("Handler", (_Handler,), {"requests": requests})
+    handler = functools.partial(handler, directory=str(site))
     server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)
     thread = threading.Thread(target=server.serve_forever, daemon=True)
     thread.start()
@@ -209,6 +224,9 @@ def _render(site: Path, page: str, tmp_path: Path) -> str:
         server.shutdown()
         server.server_close()
     assert proc.returncode == 0 and "</html>" in proc.stdout, proc.stderr[-2000:]
+    missing = [r for r in requests if r[1] >= 400]
+    assert not missing, f"{page}: requests that failed: {missing}"
+    assert any(path.endswith(".woff") for path, _ in requests), "no MathJax font was loaded"
     return proc.stdout
 
 
