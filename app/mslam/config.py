@@ -251,11 +251,33 @@ def _load_chain(path: Path, seen: tuple[Path, ...]) -> tuple[dict[str, Any], lis
     return _merge(parent, data), [*files, str(path)]
 
 
+def _dotted_keys(schema: Mapping[str, Any], prefix: str = "") -> list[str]:
+    """Every key of ``schema`` as ``section.key`` (sections included)."""
+    out = []
+    for key, value in schema.items():
+        out.append(f"{prefix}{key}")
+        if isinstance(value, dict):
+            out += _dotted_keys(value, f"{prefix}{key}.")
+    return out
+
+
+def _unknown_key(where: str, dotted: str) -> ValueError:
+    """``unknown config key`` with the closest key of base.yaml, if one is close."""
+    import difflib
+
+    depth = dotted.count(".")
+    keys = [k for k in _dotted_keys(_read_yaml(CONFIG_DIR / "base.yaml")) if k.count(".") == depth]
+    by_lower = {k.lower(): k for k in keys}
+    close = difflib.get_close_matches(dotted.lower(), list(by_lower), n=1, cutoff=0.75)
+    hint = f"; did you mean {by_lower[close[0]]}?" if close else ""
+    return ValueError(f"{where}: unknown config key {dotted!r}{hint}")
+
+
 def _check_against(schema: Mapping[str, Any], data: Mapping[str, Any], where: str, prefix=""):
     for key, value in data.items():
         dotted = f"{prefix}{key}"
         if key not in schema:
-            raise ValueError(f"{where}: unknown config key {dotted!r}")
+            raise _unknown_key(where, dotted)
         ref = schema[key]
         if isinstance(ref, dict):
             if not isinstance(value, Mapping):
@@ -335,10 +357,10 @@ def load_config(path: str | Path | None = None, overrides: Iterable[str] = ()) -
         node = data
         for k in keys[:-1]:
             if not isinstance(node.get(k), dict):
-                raise ValueError(f"--set {text!r}: unknown config key {'.'.join(keys)!r}")
+                raise _unknown_key(f"--set {text!r}", ".".join(keys))
             node = node[k]
         if keys[-1] not in node or isinstance(node[keys[-1]], dict):
-            raise ValueError(f"--set {text!r}: unknown config key {'.'.join(keys)!r}")
+            raise _unknown_key(f"--set {text!r}", ".".join(keys))
         node[keys[-1]] = value
     _check_against(schema, data, "config overrides" if overrides else files[-1])
     _coerce_numbers(schema, data)

@@ -120,13 +120,31 @@ def test_eval_refuses_degenerate_alignments(tmp_path, capsys, case, expected):
 
 def test_eval_alignment_is_scale_invariant(tmp_path, capsys):
     """Relative tests: the same shape at 1e-200 or 1e300 aligns like at 1 (an absolute
-    threshold would give scale 0)."""
+    threshold would give scale 0).
+
+    The library aligns any finite scale; the command refuses coordinates beyond
+    ``MAX_ABS_COORDINATE`` (no camera path is a million kilometres long)."""
+    from mslam.commands.eval import MAX_ABS_COORDINATE
+    from mslam.evaluate import ate
+
     t = np.arange(5.0)
     gt = _traj(tmp_path / "gt.txt", t, _GOOD)
-    for k in (1e-200, 1.0, 1e300):
+    for k in (1e-200, 1.0, MAX_ABS_COORDINATE / 2):
         assert main(["eval", gt, _traj(tmp_path / "e.txt", t, _GOOD * k)]) == 0
         res = json.loads(capsys.readouterr().out)
         assert res["ate_rmse"] < 1e-9 and res["scale"] == pytest.approx(1 / k)
+    q = np.tile([0.0, 0.0, 0.0, 1.0], (5, 1))
+    res = ate(t, np.column_stack([_GOOD * 1e300, q]), t, np.column_stack([_GOOD, q]), "sim3")
+    assert res.rmse < 1e-9 and res.scale == pytest.approx(1e-300)
+
+
+@pytest.mark.parametrize("which", ["estimate", "reference"])
+def test_eval_refuses_absurd_coordinates(tmp_path, capsys, which):
+    t = np.arange(5.0)
+    good = _traj(tmp_path / "good.txt", t, _GOOD)
+    huge = _traj(tmp_path / "huge.txt", t, _GOOD + np.array([0.0, 1e300, 0.0]))
+    args = [good, huge] if which == "estimate" else [huge, good]
+    one_line_error(capsys, main(["eval", *args]), "huge.txt: pose 1 has coordinate y = 1e+300")
 
 
 def _bal_text() -> str:

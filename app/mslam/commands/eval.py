@@ -7,7 +7,8 @@ EuRoC ground-truth csv; the format is detected from the content (``mslam.formats
 TUM/EuRoC pairs are associated by timestamp as evo does (nearest stamp within ``--max-diff``);
 KITTI files have no stamps, so they are associated by index and need equal lengths (evo's
 ``kitti`` mode). Prints one JSON object: ``ate_rmse``, ``ate_mean``, ``ate_median``, ``ate_max``,
-``scale``, ``matched``, ``n_est``, ``align``, ``max_diff``.
+``scale``, ``matched``, ``n_est``, ``align``, ``max_diff``. A position coordinate beyond
+:data:`MAX_ABS_COORDINATE` is refused (one line, exit 2).
 
 Equivalent evo command: ``evo_ape tum REFERENCE ESTIMATE -as`` (``--align sim3``, the paper's
 protocol), ``-a`` (``se3``) or no flag (``none``).
@@ -57,15 +58,30 @@ def register(subparsers: Any) -> None:
     p.set_defaults(func=run)
 
 
+#: Largest accepted |coordinate| of a position, in the file's units (metres: a million km).
+#: Beyond it the numbers are not a camera path, and squared errors would overflow float64.
+MAX_ABS_COORDINATE = 1e9
+
+
 def _read(path: Path) -> tuple[Any, Any]:
+    import numpy as np
+
     from mslam import formats as io
 
     if not path.is_file():
         raise UserError(f"{path}: no such file")
     try:
-        return io.read_trajectory(path)
+        stamps, poses = io.read_trajectory(path)
     except UnicodeDecodeError:
         raise UserError(f"{path}: not a text trajectory file") from None
+    big = np.abs(poses[:, :3]) > MAX_ABS_COORDINATE
+    if big.any():
+        i, c = np.argwhere(big)[0]
+        raise UserError(
+            f"{path}: pose {i + 1} has coordinate {'xyz'[c]} = {poses[i, c]:g}, too large for a "
+            f"trajectory (|coordinate| <= {MAX_ABS_COORDINATE:g})"
+        )
+    return stamps, poses
 
 
 def run(args: argparse.Namespace) -> int:

@@ -195,8 +195,19 @@ def _print_summary(s: dict, out: Path) -> None:
     for w in s["warnings"]:
         lines.append(f"  WARNING: {w}")
     if not s["warnings"]:
-        lines.append("  plausible: no warning (posed fraction and scale within limits)")
+        lines.append(f"  plausible: no warning ({_checked(s)})")
     if s.get("interrupted"):
         lines.append("  interrupted: outputs contain the frames processed so far")
     lines.append(f"  outputs in {out}/")
     print("\n".join(lines), file=sys.stderr)
+
+
+def _checked(s: dict) -> str:
+    """What the plausibility checks covered in this run (``mslam.system.health``)."""
+    from mslam.system.health import METRIC_PRIORS
+
+    if "ate_rmse" not in s:
+        return "posed fraction checked; scale and accuracy not checked: no ground truth"
+    if s["prior"] not in METRIC_PRIORS:
+        return f"posed fraction checked; scale not checked: the {s['prior']} prior is not metric"
+    return "posed fraction and aligned scale within limits"

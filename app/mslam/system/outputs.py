@@ -180,9 +180,17 @@ def summary_dict(system: SlamSystem, meta: dict[str, Any], ev: dict[str, Any]) -
 
 
 def plot_trajectory(
-    system: SlamSystem, ev: dict[str, Any], title: str = "", baseline: Any = None
+    system: SlamSystem,
+    ev: dict[str, Any],
+    title: str = "",
+    baseline: Any = None,
+    metric: bool = True,
 ) -> bytes:
     """PNG bytes: top view and the position error over time, both panels labelled.
+
+    Axes are in metres when the estimate is aligned to ground truth or ``metric`` (a depth-based
+    prior, ``mslam.system.health.METRIC_PRIORS``), else in "arbitrary units" (RGB-only priors
+    fix the scale only up to a factor).
 
     Top view (the plane of the two largest principal directions of the ground truth, else of
     the estimate): ground truth, the Sim(3)-aligned estimate, keyframes, loop-closure edges
@@ -242,8 +250,9 @@ def plot_trajectory(
         ax.plot(*p2.T, ".-", color="C3", ms=2, label="estimate (no ground truth)")
         _plot_keyframes(ax, system, lambda Q: (np.asarray(Q) - c) @ B)
         _plot_start_end(ax, p2)
-    ax.set_xlabel("first principal direction [m]")
-    ax.set_ylabel("second principal direction [m]")
+    unit = "m" if res is not None or metric else "arbitrary units"
+    ax.set_xlabel(f"first principal direction [{unit}]")
+    ax.set_ylabel(f"second principal direction [{unit}]")
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_title(f"{title or 'trajectory'}: top view")
     ax.legend(loc="best", fontsize=7)
@@ -315,7 +324,10 @@ def write_outputs(
     ev = evaluate_run(system, sequence)
     summary = summary_dict(system, meta, ev)
     base = (meta.get("baseline") or {}).get("_result")
-    png = plot_trajectory(system, ev, title=str(meta.get("source", "")), baseline=base)
+    from mslam.system.health import METRIC_PRIORS
+
+    metric = meta.get("prior") in METRIC_PRIORS
+    png = plot_trajectory(system, ev, str(meta.get("source", "")), base, metric)
     text = json.dumps(_finite(summary), indent=2, default=_json_default, allow_nan=False) + "\n"
     out_dir.mkdir(parents=True, exist_ok=True)
     mio.write_tum(out_dir / "trajectory.txt", ts, T.reshape(-1, 8))

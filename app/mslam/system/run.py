@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import contextlib
 import signal
-import sys
 import threading
 import time
 import warnings
@@ -60,7 +59,7 @@ def run_slam(
         source: from :func:`open_source`.
         cfg: the resolved configuration.
         kernels: the kernel set.
-        progress: show a tqdm progress bar on stderr.
+        progress: show progress on stderr (:func:`mslam.system.progress.progress_bar`).
         system: continue an existing system (default: a new one).
         skip_bad_frames: skip unreadable frames instead of raising.
         observer: called as ``observer.after_frame(i, frame, system, status)`` after every
@@ -76,9 +75,9 @@ def run_slam(
     n = len(seq)
     bar = None
     if progress:
-        from tqdm import tqdm
+        from mslam.system.progress import progress_bar
 
-        bar = tqdm(total=n, file=sys.stderr, unit="frame", dynamic_ncols=True, leave=False)
+        bar = progress_bar(n)  # a tqdm bar on a terminal, sparse whole lines in a log
     interrupted = False
     shape = None
     skipped: list[dict[str, Any]] = []

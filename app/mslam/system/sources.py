@@ -127,7 +127,8 @@ def open_source(
         )
     if prior_name in ("synthetic", "rgbd") and not seq.has_depth:
         raise ValueError(
-            f"{source}: the {prior_name} prior needs depth images; the source has none"
+            f"{source}: the {prior_name} prior needs depth images; the source has none: use "
+            "--prior twoview (RGB only, classical two-view geometry) or --prior mast3r"
         )
     if prior_name == "synthetic" and (seq.T_WC is None or seq.K is None):
         raise ValueError(f"{source}: the synthetic prior needs ground-truth poses and intrinsics")

@@ -1,0 +1,142 @@
+"""What ``mslam run`` tells the user: progress in a log, the plausibility line, plot units, hints.
+
+Progress written to a pipe or file is whole lines (no carriage-return redraws); the summary
+says what the plausibility checks covered; an RGB-only run's top view is in arbitrary units;
+a misspelt config key gets the closest key; the rgbd prior on RGB-only frames names twoview.
+"""
+
+from __future__ import annotations
+
+import io
+
+import cv2
+import pytest
+
+from mslam.cli import main
+from mslam.datasets.synthetic import make_sequence
+from mslam.system.progress import LOG_LINES, LineProgress, progress_bar
+
+
+@pytest.fixture(scope="module")
+def rgb_folder(tmp_path_factory):
+    """Six RGB-only frames (no depth, no ground truth) of the forward path, 128x96."""
+    seq = make_sequence("forward", n_frames=12, width=128, height=96, seed=0)
+    folder = tmp_path_factory.mktemp("rgb") / "images"
+    folder.mkdir()
+    for i in range(0, 12, 2):
+        cv2.imwrite(str(folder / f"{i:04d}.png"), cv2.cvtColor(seq[i].rgb, cv2.COLOR_RGB2BGR))
+    return folder
+
+
+@pytest.fixture(scope="module")
+def twoview_run(rgb_folder, tmp_path_factory):
+    """An RGB-only twoview run with progress and summary on a captured (non-terminal) stderr;
+    records the axis labels of trajectory.png."""
+    import matplotlib.axes
+
+    out = tmp_path_factory.mktemp("twoview") / "out"
+    labels: list[str] = []
+    err = io.StringIO()
+    mp = pytest.MonkeyPatch()
+    original = matplotlib.axes.Axes.set_xlabel
+    mp.setattr(
+        matplotlib.axes.Axes,
+        "set_xlabel",
+        lambda ax, text, *a, **k: (labels.append(text), original(ax, text, *a, **k))[1],
+    )
+    mp.setattr("sys.stderr", err)
+    try:
+        rc = main(["run", str(rgb_folder), "--out", str(out), "--prior", "twoview",
+                   "--kernels", "ref"])  # fmt: skip
+    finally:
+        mp.undo()
+    assert rc == 0, err.getvalue()
+    return err.getvalue(), labels
+
+
+def test_progress_in_a_log_is_sparse_whole_lines(twoview_run):
+    err, _ = twoview_run
+    assert "\r" not in err
+    lines = [ln for ln in err.splitlines() if ln.startswith("frame ")]
+    assert lines and lines[-1].startswith("frame 6/6 (100%)"), err
+    assert len(lines) <= LOG_LINES + 1
+
+
+@pytest.mark.parametrize("total", [1, 7, 1000, 1003])
+def test_line_progress_prints_at_most_log_lines_plus_the_end(total):
+    buf = io.StringIO()
+    bar = LineProgress(total, buf)
+    for _ in range(total):
+        bar.set_postfix(kf=1, refresh=False)
+        bar.update(1)
+    bar.close()
+    lines = buf.getvalue().splitlines()
+    assert 1 <= len(lines) <= LOG_LINES + 1, lines
+    assert lines[-1].startswith(f"frame {total}/{total} (100%)") and lines[-1].endswith("kf=1")
+    done = [int(ln.split()[1].split("/")[0]) for ln in lines]
+    assert done == sorted(set(done))
+
+
+def test_progress_bar_is_tqdm_on_a_terminal_only():
+    class Tty(io.StringIO):
+        def isatty(self) -> bool:
+            return True
+
+    assert isinstance(progress_bar(5, io.StringIO()), LineProgress)
+    assert not isinstance(progress_bar(5, Tty()), LineProgress)
+
+
+def test_rgb_only_plot_is_in_arbitrary_units(twoview_run):
+    _, labels = twoview_run
+    assert labels and all("[arbitrary units]" in t for t in labels), labels
+
+
+def test_plausible_line_says_what_was_not_checked(twoview_run):
+    err, _ = twoview_run
+    line = next(ln for ln in err.splitlines() if "plausible" in ln)
+    assert "no ground truth" in line and "scale and accuracy not checked" in line, line
+
+
+def test_plausible_line_names_the_checks_that_ran():
+    from mslam.commands.run import _checked
+
+    with_gt = {"ate_rmse": 0.01, "prior": "rgbd"}
+    assert _checked(with_gt) == "posed fraction and aligned scale within limits"
+    assert "scale not checked: the twoview prior is not metric" in _checked(
+        {**with_gt, "prior": "twoview"}
+    )
+    assert "no ground truth" in _checked({"prior": "rgbd"})
+
+
+@pytest.mark.parametrize(
+    "key, suggestion",
+    [("tracking.Qconf", "tracking.Q_conf"), ("trackin.Q_conf", "tracking.Q_conf")],
+)
+def test_misspelt_config_key_gets_a_suggestion(tmp_path, capsys, key, suggestion):
+    rc = main(["run", "--out", str(tmp_path / "o"), "--set", f"{key}=2", "--quiet"])
+    err = capsys.readouterr().err
+    assert rc == 2 and err.count("\n") == 1, err
+    assert f"unknown config key {key!r}; did you mean {suggestion}?" in err
+    assert not (tmp_path / "o").exists()
+
+
+def test_misspelt_section_in_a_file_gets_a_suggestion(tmp_path, capsys):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("trackin:\n  Q_conf: 2\n")
+    rc = main(["run", "--out", str(tmp_path / "o"), "--config", str(bad), "--quiet"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "'trackin'; did you mean tracking?" in err, err
+
+
+def test_unrelated_key_gets_no_suggestion(tmp_path, capsys):
+    rc = main(["run", "--out", str(tmp_path / "o"), "--set", "tracking.zzz=2", "--quiet"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "unknown config key 'tracking.zzz'" in err and "did you mean" not in err
+
+
+def test_rgbd_prior_on_rgb_frames_names_twoview(rgb_folder, tmp_path, capsys):
+    rc = main(["run", str(rgb_folder), "--out", str(tmp_path / "o"), "--prior", "rgbd"])
+    err = capsys.readouterr().err
+    assert rc == 2 and err.count("\n") == 1, err
+    assert "needs depth images" in err and "--prior twoview" in err
+    assert not (tmp_path / "o").exists()
