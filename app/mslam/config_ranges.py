@@ -69,6 +69,7 @@ RANGES: dict[str, tuple[bool, float, float, bool]] = {
     "rgbd_prior.detect_max_width": (True, 0, 8192, False),
     "rgbd_prior.icp_iters": (True, 0, 1000, False),
     "rgbd_prior.icp_points": (True, 100, 10_000_000, False),
+    "output.C_conf_threshold": (False, 0, _INF, False),
 }
 
 

@@ -80,7 +80,7 @@ def register(subparsers: Any) -> None:
     p.add_argument(
         "--map-icp",
         action="store_true",
-        help="after the trajectory's alignment, register the map onto the truth by Sim(3) ICP "
+        help="after the trajectory's alignment, register the map onto the truth by rigid ICP "
         "(the paper's 7-Scenes protocol; the trajectory's ATE is unchanged)",
     )
     p.set_defaults(func=run)
