@@ -234,7 +234,8 @@ plt.show()
 # and 1.9 cm once registered: the RGB-D map itself is tight, its trajectory alignment is not.
 # The exported points' confidence threshold trades accuracy for completion: for the RGB-only
 # run, `output.C_conf_threshold=2` drops the far share from 5.9 % to 1.7 % and completion
-# grows from 19 to 23 cm.
+# grows from 19 to 23 cm. This chapter's run (every second frame, measured 2026-11-26): chamfer
+# 31.7 cm with 14.4 % far, 26.7 cm after ICP, and a position fit 39° from the orientations'.
 
 # %% [markdown]
 # ## Reference against fast on a two-view pair
