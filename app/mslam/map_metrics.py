@@ -12,10 +12,11 @@ Method (docs/evaluation.md, section 4.1):
    run's ``trajectory.txt`` to the ground-truth trajectory: ``mslam.evaluate.ate`` with evo's
    association and Umeyama's Sim(3) (``x -> s R x + t``, :func:`align_points`). Optionally
    (``refine="icp"``, the paper's 7-Scenes protocol) :func:`icp_refine` then registers the map
-   rigidly onto the truth, starting from that transform and keeping its scale. Umeyama fits positions only: on a short,
-   nearly straight path the rotation about the path is weakly determined, so the result also
-   reports :func:`orientation_disagreement`, the angle between the fitted rotation and the one
-   the camera orientations imply (a few degrees move points metres away by centimetres).
+   rigidly onto the truth, starting from that transform and keeping its scale. Umeyama fits
+   positions only: on a short, nearly straight path the rotation about the path is weakly
+   determined, so the result also reports :func:`orientation_disagreement`, the angle between
+   the fitted rotation and the one the camera orientations imply (a few degrees move points
+   metres away by centimetres).
 3. **Distances.** Nearest neighbours with ``scipy.spatial.cKDTree`` both ways, each over at most
    200 000 points drawn at random with a fixed seed (results are reproducible):
 
