@@ -180,7 +180,7 @@ APP_LAYERS: tuple[tuple[str, ...], ...] = (
         "mslam.device",
     ),
     ("mslam.conformance",),
-    ("mslam.datasets", "mslam.priors"),
+    ("mslam.datasets", "mslam.priors", "mslam.map_metrics"),
     ("mslam.config", "mslam.config_ranges"),
     ("mslam.system",),
     ("mslam.export",),

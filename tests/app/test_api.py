@@ -17,7 +17,7 @@ def test_run_without_out_writes_nothing_and_returns_the_summary(tmp_path, monkey
     monkeypatch.chdir(tmp_path)
     result = mslam.run(SRC, kernels="ref")
     assert result.out is None and list(tmp_path.iterdir()) == []
-    idx, ts, T = result.trajectory
+    idx, _ts, T = result.trajectory
     assert result.summary["frames"] == 10 and result.summary["frames_with_pose"] == len(idx)
     assert T.shape == (len(idx), 8) and np.all(np.isfinite(T))
     assert result.summary["device"] == "cpu" and not result.interrupted

@@ -51,6 +51,11 @@ def test_table_has_every_sequence_failures_reported(evaluated, tum_root) -> None
     assert rows[0]["status"] == "ok" and float(rows[0]["ate_rmse_m"]) >= 0
     assert int(rows[0]["frames_posed"]) <= int(rows[0]["frames"]) == 8
     assert rows[2]["status"].startswith("failed") and rows[2]["ate_rmse_m"] == ""
+    for key in ("accuracy_m", "completion_m", "chamfer_m", "chamfer_icp_m"):  # map metrics
+        assert 0 <= float(rows[0][key]) < 0.5 and rows[2][key] == ""
+    acc, comp, cham = (float(rows[0][k]) for k in ("accuracy_m", "completion_m", "chamfer_m"))
+    assert cham == pytest.approx((acc + comp) / 2, abs=1e-4) and 0 <= float(rows[0]["far"]) <= 1
+    assert json.loads((out / "a" / "map_metrics.json").read_text())["chamfer_m"] >= 0
     mean = (float(rows[0]["ate_rmse_m"]) + float(rows[1]["ate_rmse_m"])) / 2
     assert float(rows[3]["ate_rmse_m"]) == pytest.approx(mean, abs=1e-4)
     md = (out / "results.md").read_text()
@@ -90,6 +95,8 @@ def test_7scenes_redkitchen_table(shared_data, tmp_path) -> None:
     assert main(["eval-dataset", str(root), "--dataset", "7scenes", "--out", str(out)]) == 0
     row = next(csv.DictReader((out / "results.csv").open()))
     assert row["sequence"] == "redkitchen" and float(row["ate_rmse_m"]) <= 0.02
+    # The map registered onto the true depth (rigid ICP, paper protocol): 0.019 m on 2026-11-26.
+    assert float(row["chamfer_icp_m"]) <= 0.03
     assert row["frames_posed"] == row["ate_frames"] == "150"
     est_ts, _ = read_tum(out / "redkitchen" / "trajectory.txt")
     gt_ts, _ = read_tum(shared_data / SEVEN / "groundtruth.txt")

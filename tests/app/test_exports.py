@@ -9,7 +9,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from tolerances import COLMAP_POSE_ATOL, DEPTH_VS_PLY_MEDIAN_REL, FOCAL_FROM_POINTMAP_RTOL
+from tolerances import (
+    COLMAP_POSE_ATOL,
+    DEPTH_VS_PLY_MEDIAN_REL,
+    F64_IDENTITY,
+    FOCAL_FROM_POINTMAP_RTOL,
+    RERUN_F32_POSITION,
+)
 
 from mslam.cli import main
 from mslam.export.camera import focal_from_pointmap
@@ -82,7 +88,9 @@ def test_recording_holds_the_run(loop_dir: Path):
         conf = _column(pts, "confidence")
         assert len(pos[-1]) == len(col[-1]) == len(conf[-1]) > 1000
         t = _column(ent[f"/world/keyframes/{k}"], "Transform3D:translation")[-1]
-        np.testing.assert_allclose(np.ravel(t), kT[k, :3], atol=1e-5)  # the final pose last
+        np.testing.assert_allclose(
+            np.ravel(t), kT[k, :3], atol=RERUN_F32_POSITION
+        )  # the final pose last
     # refined by fusion: keyframe 0's pointmap logged again, with moved points
     kf0 = _column(ent["/world/keyframes/0/points"], "Points3D:positions")
     assert len(kf0) >= 2 and np.abs(np.array(kf0[-1]) - np.array(kf0[0])).max() > 1e-4
@@ -236,5 +244,5 @@ def test_given_intrinsics_are_written_verbatim(tmp_path):
     rc = _run(out, "synthetic:loop:6:64x48", "--calib", str(calib), "--colmap", str(out / "c"))
     assert rc == 0
     cam = pycolmap.Reconstruction(str(out / "c")).cameras[1]
-    np.testing.assert_allclose(cam.params, [fx, fx, cx + 0.5, cy + 0.5], rtol=1e-12)
+    np.testing.assert_allclose(cam.params, [fx, fx, cx + 0.5, cy + 0.5], rtol=F64_IDENTITY)
     assert "# Intrinsics: given" in (out / "c" / "cameras.txt").read_text()

@@ -12,6 +12,12 @@ KITTI files have no stamps, so they are associated by index and need equal lengt
 
 Equivalent evo command: ``evo_ape tum REFERENCE ESTIMATE -as`` (``--align sim3``, the paper's
 protocol), ``-a`` (``se3``) or no flag (``none``).
+
+Dense map (paper Table 3, ``mslam.map_metrics``): ``--map PLY`` with ``--truth-cloud PLY`` or
+``--truth-rgbd FOLDER`` adds a ``map`` object (accuracy, completion, chamfer, medians, far
+fraction) and a ``map_alignment`` object to the JSON; the map is moved by the same alignment as
+the trajectory, then with ``--map-icp`` registered onto the truth by ICP. REFERENCE may also be
+an RGB-D folder (7-Scenes or TUM layout): its ground-truth poses are the reference.
 """
 
 from __future__ import annotations
@@ -55,6 +61,29 @@ def register(subparsers: Any) -> None:
         default=0.01,
         help="largest timestamp difference for a match, seconds (default 0.01, as evo)",
     )
+    p.add_argument(
+        "--map",
+        type=Path,
+        metavar="PLY",
+        help="the run's reconstruction.ply: add dense-map metrics (needs a --truth-* option)",
+    )
+    truth = p.add_mutually_exclusive_group()
+    truth.add_argument(
+        "--truth-cloud", type=Path, metavar="PLY", help="true point cloud (PLY), world frame"
+    )
+    truth.add_argument(
+        "--truth-rgbd",
+        type=Path,
+        metavar="FOLDER",
+        help="RGB-D folder with ground-truth poses (7-Scenes or TUM layout): the truth is the "
+        "depth of every 5th frame in the estimate's time span, voxel-downsampled to 1 cm",
+    )
+    p.add_argument(
+        "--map-icp",
+        action="store_true",
+        help="after the trajectory's alignment, register the map onto the truth by rigid ICP "
+        "(the paper's 7-Scenes protocol; the trajectory's ATE is unchanged)",
+    )
     p.set_defaults(func=run)
 
 
@@ -68,6 +97,9 @@ def _read(path: Path) -> tuple[Any, Any]:
 
     from mslam import formats as io
 
+    if path.is_dir():
+        seq = _open_rgbd(path, need_depth=False)
+        return seq.timestamps, seq.T_WC
     if not path.is_file():
         raise UserError(f"{path}: no such file")
     try:
@@ -90,6 +122,10 @@ def run(args: argparse.Namespace) -> int:
 
     if not (args.max_diff >= 0):
         raise UserError(f"--max-diff: must be >= 0, got {args.max_diff}")
+    if args.map is None and (args.truth_cloud or args.truth_rgbd or args.map_icp):
+        raise UserError("--truth-cloud/--truth-rgbd/--map-icp: give the map with --map PLY")
+    if args.map is not None and args.truth_cloud is None and args.truth_rgbd is None:
+        raise UserError("--map: give the truth with --truth-cloud PLY or --truth-rgbd FOLDER")
     gt_stamps, gt_poses = _read(args.groundtruth)
     est_stamps, est_poses = _read(args.estimate)
     if (est_stamps is None) != (gt_stamps is None):
@@ -105,5 +141,67 @@ def run(args: argparse.Namespace) -> int:
     out = res.to_dict()
     out["align"] = args.align
     out["max_diff"] = args.max_diff if est_stamps is not None else None
+    if args.map is not None:
+        out["map"], out["map_alignment"] = _map(args, (est_stamps, est_poses, gt_stamps, gt_poses))
     print_json(out)
     return 0
+
+
+def _open_rgbd(folder: Path, need_depth: bool = True) -> Any:
+    """The sequence of an RGB-D folder, with ground truth (and depth when ``need_depth``)."""
+    from mslam.datasets import load_sequence
+
+    try:
+        seq = load_sequence(folder)
+    except (OSError, ValueError) as exc:
+        raise UserError(f"{folder}: {exc}") from None
+    if seq.T_WC is None:
+        raise UserError(f"{folder}: no ground-truth pose for every frame")
+    if need_depth and (seq.K is None or not seq.has_depth):
+        raise UserError(f"{folder}: needs depth images and intrinsics for --truth-rgbd")
+    return seq
+
+
+def _truth(args: argparse.Namespace, est_stamps: Any) -> Any:
+    from mslam import formats as io
+    from mslam.map_metrics import truth_from_rgbd
+
+    if args.truth_cloud is not None:
+        if not args.truth_cloud.is_file():
+            raise UserError(f"{args.truth_cloud}: no such file")
+        try:
+            return io.read_ply(args.truth_cloud)[0]
+        except ValueError as exc:
+            raise UserError(str(exc)) from None
+    if not args.truth_rgbd.is_dir():
+        raise UserError(f"{args.truth_rgbd}: no such folder")
+    seq = _open_rgbd(args.truth_rgbd)
+    span = None
+    if est_stamps is not None and len(est_stamps):
+        span = (float(min(est_stamps)) - args.max_diff, float(max(est_stamps)) + args.max_diff)
+    try:
+        return truth_from_rgbd(seq, t_range=span)
+    except ValueError as exc:
+        raise UserError(f"{args.truth_rgbd}: {exc}") from None
+
+
+def _map(args: argparse.Namespace, trajs: tuple) -> tuple[dict[str, Any], dict[str, Any]]:
+    """``--map``: read the map and the truth, align the map like the trajectory, score it."""
+    from mslam import formats as io
+    from mslam.map_metrics import evaluate_map
+
+    if not args.map.is_file():
+        raise UserError(f"{args.map}: no such file")
+    try:
+        xyz = io.read_ply(args.map)[0]
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
+    if len(xyz) == 0:
+        raise UserError(f"{args.map}: the map has no points")
+    truth = _truth(args, trajs[0])
+    refine = "icp" if args.map_icp else "none"
+    try:
+        m, _, info = evaluate_map(xyz, *trajs, truth, args.align, args.max_diff, refine)
+    except ValueError as exc:
+        raise UserError(f"{args.map}: {exc}") from None
+    return m.to_dict(), info

@@ -16,13 +16,18 @@ without calibration). This is the same in one command:
 3. a sequence that fails (bad files, no depth for the default prior, ...) is reported and
    skipped; a sequence whose ``DIR/<sequence>/summary.json`` exists is not run again, so an
    interrupted evaluation resumes where it stopped;
-4. progress goes to stderr; ``DIR/results.md`` and ``DIR/results.csv`` get the table (per
-   sequence: ATE RMSE and the frames it covers, frames posed, keyframes, FPS, scale,
-   warnings; and the mean), which is also printed.
+4. a sequence with depth and ground truth also gets the dense-map metrics of paper Table 3
+   (:func:`map_scores`, ``mslam.map_metrics``): the run's ``reconstruction.ply`` moved by the
+   trajectory's Sim(3) against the depth of every 5th frame, and once more after ICP; stored
+   in ``DIR/<sequence>/map_metrics.json``;
+5. progress goes to stderr; ``DIR/results.md`` and ``DIR/results.csv`` get the table (per
+   sequence: ATE RMSE and the frames it covers, map accuracy, completion, chamfer, far share
+   and chamfer after ICP, frames posed, keyframes, FPS, scale, warnings; and the mean), which
+   is also printed.
 
 Public names, in reading order:
-    DATASETS, find_sequences, sequence_name, run_sequence, results_rows, results_markdown,
-    results_csv, register, run
+    DATASETS, find_sequences, sequence_name, run_sequence, map_scores, results_rows,
+    results_markdown, results_csv, register, run
 """
 
 from __future__ import annotations
@@ -41,6 +46,7 @@ from mslam.commands import UserError
 __all__ = [
     "DATASETS",
     "find_sequences",
+    "map_scores",
     "register",
     "results_csv",
     "results_markdown",
@@ -103,6 +109,47 @@ def run_sequence(path: Path, cfg: Any, kernels: Any, out: Path, max_frames: int 
     return write_outputs(out, system, source.sequence, meta)
 
 
+def map_scores(path: Path, out: Path) -> dict[str, Any]:
+    """Dense-map metrics of the run in ``out`` against the RGB-D sequence at ``path``.
+
+    Returns:
+        ``accuracy_m``, ``completion_m``, ``chamfer_m``, ``far`` (trajectory Sim(3) alignment)
+        and ``chamfer_icp_m`` (after ICP); read from ``out/map_metrics.json`` when present,
+        else computed and written there.
+
+    Raises:
+        ValueError / OSError: no depth or ground truth, or unreadable run outputs.
+    """
+    from mslam import formats as io
+    from mslam.datasets import load_sequence
+    from mslam.map_metrics import evaluate_map, truth_from_rgbd
+
+    done = out / "map_metrics.json"
+    if done.is_file():
+        return json.loads(done.read_text())
+    seq = load_sequence(path)
+    if seq.T_WC is None:
+        raise ValueError(f"{path}: no ground-truth pose for every frame")
+    ts, T = io.read_tum(out / "trajectory.txt")
+    xyz = io.read_ply(out / "reconstruction.ply")[0]
+    truth = truth_from_rgbd(seq, t_range=(float(ts.min()) - 0.01, float(ts.max()) + 0.01))
+    m, _, _ = evaluate_map(xyz, ts, T, seq.timestamps, seq.T_WC, truth)
+    m_icp, _, _ = evaluate_map(xyz, ts, T, seq.timestamps, seq.T_WC, truth, refine="icp")
+    res = {
+        "accuracy_m": m.accuracy,
+        "completion_m": m.completion,
+        "chamfer_m": m.chamfer,
+        "far": m.far,
+        "chamfer_icp_m": m_icp.chamfer,
+    }
+    write_atomic(done, json.dumps(res, indent=2) + "\n")
+    return res
+
+
+#: The map columns of the table (:func:`map_scores`).
+MAP_KEYS = ("accuracy_m", "completion_m", "chamfer_m", "far", "chamfer_icp_m")
+
+
 def results_rows(results: list[tuple[str, dict | None, str]]) -> list[dict[str, Any]]:
     """Table rows from ``(name, summary or None, status)``; the mean row last."""
     rows = []
@@ -119,23 +166,24 @@ def results_rows(results: list[tuple[str, dict | None, str]]) -> list[dict[str, 
                 scale=(s.get("ate") or {}).get("scale"),
                 warnings=len(s.get("warnings", [])),
             )
+            r.update((k, (s.get("map") or {}).get(k)) for k in MAP_KEYS)
         rows.append(r)
     ok = [r for r in rows if r.get("ate_rmse_m") is not None]
     mean: dict[str, Any] = {"sequence": "mean", "status": f"{len(ok)} of {len(rows)} scored"}
-    for key in ("ate_rmse_m", "fps"):
+    for key in ("ate_rmse_m", "fps", *MAP_KEYS):
         vals = [r[key] for r in ok if r.get(key) is not None]
         mean[key] = sum(vals) / len(vals) if vals else None
     return [*rows, mean]
 
 
-COLUMNS = ("sequence", "ate_rmse_m", "ate_frames", "frames_posed", "frames", "keyframes", "fps",
-           "scale", "warnings", "status")  # fmt: skip
+COLUMNS = ("sequence", "ate_rmse_m", "ate_frames", *MAP_KEYS, "frames_posed", "frames",
+           "keyframes", "fps", "scale", "warnings", "status")  # fmt: skip
 
 
 def _fmt(v: Any, key: str) -> str:
     if v is None:
         return ""
-    if key == "ate_rmse_m":
+    if key == "ate_rmse_m" or key in MAP_KEYS:
         return f"{v:.4f}"
     if key in ("fps", "scale"):
         return f"{v:.3f}" if key == "scale" else f"{v:.2f}"
@@ -154,6 +202,13 @@ def results_markdown(rows: list[dict[str, Any]], title: str) -> str:
         "|" + "---|" * len(head),
         "| " + " | ".join(vals) + " |",
     ]
+    if any(r.get("chamfer_m") is not None for r in seqs):
+        lines += ["", "Map chamfer [m] (trajectory Sim(3) / after ICP; mslam.map_metrics):", ""]
+        lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+        for key in ("chamfer_m", "chamfer_icp_m"):
+            cells = [_fmt(r.get(key), key) or "-" for r in seqs]
+            avg = _fmt(rows[-1].get(key), key)
+            lines.append("| " + " | ".join([f"mslam ({key})", *cells, avg]) + " |")
     lines += ["", "| " + " | ".join(COLUMNS) + " |", "|" + "---|" * len(COLUMNS)]
     for r in rows:
         lines.append("| " + " | ".join(_fmt(r.get(k), k) for k in COLUMNS) + " |")
@@ -225,7 +280,8 @@ def _one(k: int, n: int, name: str, seq: Path, cfg: Any, kernels: Any, args: Any
     done = out / "summary.json"
     if done.is_file():
         print(f"[{k}/{n}] {name}: done before, reusing {done}", file=sys.stderr)
-        return name, json.loads(done.read_text()), "resumed"
+        s = json.loads(done.read_text())
+        return name, dict(s, map=_map_or_none(k, n, name, seq, out)), "resumed"
     print(f"[{k}/{n}] {name}: running", file=sys.stderr, flush=True)
     try:
         s = run_sequence(seq, cfg, kernels, out, args.max_frames)
@@ -233,10 +289,22 @@ def _one(k: int, n: int, name: str, seq: Path, cfg: Any, kernels: Any, args: Any
         msg = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
         print(f"[{k}/{n}] {name}: FAILED, skipped: {msg}", file=sys.stderr)
         return name, None, f"failed: {msg}"
+    s = dict(s, map=_map_or_none(k, n, name, seq, out))
     ate = f"ATE {s['ate_rmse']:.4f} m, " if s.get("ate_rmse") is not None else ""
+    if s["map"] is not None:
+        ate += f"map chamfer {s['map']['chamfer_m']:.4f} m, "
     print(
         f"[{k}/{n}] {name}: {ate}{s['frames_with_pose']}/{s['frames']} posed, "
         f"{s['frames_per_second'] or 0:.2f} FPS{'' if s['plausible'] else ', WARNING'}",
         file=sys.stderr,
     )
     return name, s, "ok"
+
+
+def _map_or_none(k: int, n: int, name: str, seq: Path, out: Path) -> dict | None:
+    """:func:`map_scores`, or None (reported on stderr) when the sequence cannot be scored."""
+    try:
+        return map_scores(seq, out)
+    except (OSError, ValueError) as exc:
+        print(f"[{k}/{n}] {name}: no map metrics: {exc}", file=sys.stderr)
+        return None

@@ -11,8 +11,10 @@ Files in the output folder, every one written atomically (temporary file, then r
   ``keyframes/<timestamp>.png`` (upstream's ``keyframes/`` folder), at the working resolution.
 * ``baseline_odometry.txt`` — with ``--baseline``: OpenCV's RGB-D odometry, TUM format.
 * ``reconstruction.ply`` — per keyframe, world points ``T_WC · X_canon`` (ray-constrained in
-  calibrated mode), colours from the keyframe image, pixels with ``C/N > 1.5`` (upstream's
-  ``save_reconstruction``); binary little-endian, x y z float32, red green blue uint8.
+  calibrated mode), colours from the keyframe image, pixels with average confidence ``C/N``
+  above ``output.C_conf_threshold`` (default 1.5, upstream's ``save_reconstruction``; the
+  RGB-D prior gives pixels without measured depth ``C = 1``, so they are never exported);
+  binary little-endian, x y z float32, red green blue uint8.
 * ``summary.json`` — counts, timings, kernels, prior, ATE (Sim(3) Umeyama, evo's association)
   when ground truth exists, path length.
 * ``trajectory.png`` — estimate (aligned) and ground truth from the top, and the error over time.
@@ -47,19 +49,29 @@ __all__ = [
     "write_outputs",
 ]
 
-#: Average-confidence threshold of the exported points (upstream viz default, docs/upstream.md §13).
+#: Default of ``output.C_conf_threshold``, the average confidence an exported point must exceed
+#: (upstream viz default, docs/upstream.md §13).
 C_CONF_THRESHOLD = 1.5
 
 
 def reconstruction_points(
-    system: SlamSystem, c_thresh: float = C_CONF_THRESHOLD
+    system: SlamSystem, c_thresh: float | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
     """World points and colours of all keyframes (upstream evaluate.py::save_reconstruction).
+
+    Args:
+        system: the finished run.
+        c_thresh: keep pixels with ``C/N > c_thresh``; None reads the run's
+            ``output.C_conf_threshold`` (default :data:`C_CONF_THRESHOLD`).
 
     Returns:
         xyz (P, 3) float32, rgb (P, 3) uint8.
     """
     from mslam_ref import fusion
+
+    if c_thresh is None:
+        section = dict(system.cfg.sections.get("output", {}))
+        c_thresh = float(section.get("C_conf_threshold", C_CONF_THRESHOLD))
 
     if len(system.keyframes) == 0:
         return np.zeros((0, 3), np.float32), np.zeros((0, 3), np.uint8)

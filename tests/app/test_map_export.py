@@ -1,0 +1,47 @@
+"""``reconstruction.ply`` keeps the pixels above ``output.C_conf_threshold`` (system.outputs)."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from mslam.config import load_config
+from mslam.system.outputs import C_CONF_THRESHOLD, reconstruction_points
+from mslam_ref import sim3
+
+
+class _Keyframes(list):
+    """The two things the export reads from the keyframe store: iteration and pointmaps."""
+
+    def __init__(self, kfs, X, C):
+        super().__init__(kfs)
+        self.X, self.C = X, C
+
+    def pointmaps(self, fusion, K):
+        return self.X, self.C
+
+
+def _system(overrides: list[str]) -> SimpleNamespace:
+    """One 2x3 keyframe at the identity with confidences 1 (filled depth), 2, 4, 8, 16, 32."""
+    H, W = 2, 3
+    X = np.arange(H * W * 3, dtype=np.float64).reshape(1, H, W, 3) + 1.0
+    C = np.array([[[1.0, 2.0, 4.0], [8.0, 16.0, 32.0]]])
+    frame = SimpleNamespace(rgb=np.zeros((H, W, 3), np.uint8))
+    kf = SimpleNamespace(shape=(H, W), frame=frame, T_WC=sim3.identity())
+    cfg = load_config("base", overrides)
+    return SimpleNamespace(cfg=cfg, keyframes=_Keyframes([kf], X, C), K=None, prior=None)
+
+
+@pytest.mark.parametrize(("overrides", "kept"), [([], 5), (["output.C_conf_threshold=5"], 3)])
+def test_export_threshold_is_a_config_key(overrides, kept) -> None:
+    xyz, rgb = reconstruction_points(_system(overrides))
+    assert len(xyz) == len(rgb) == kept
+    assert load_config("base").sections["output"]["C_conf_threshold"] == C_CONF_THRESHOLD
+
+
+def test_confidence_one_is_never_exported() -> None:
+    """Pixels without measured depth get C = 1 from the RGB-D prior: below any threshold >= 1."""
+    xyz, _ = reconstruction_points(_system([]), c_thresh=1.0)
+    assert len(xyz) == 5 and not np.any(np.all(xyz == [1.0, 2.0, 3.0], axis=1))
