@@ -47,6 +47,7 @@ from mslam.config import SlamConfig
 from mslam.datasets.frame import Frame
 from mslam.kernels import KernelSet
 from mslam.system import parallax
+from mslam.system.divergence import DivergenceMonitor
 from mslam.system.global_opt import backend_step
 from mslam.system.graph import FactorGraph, Keyframe, KeyframeStore
 from mslam.system.retrieval_features import RetrievalIndex
@@ -117,6 +118,7 @@ class SlamSystem:
         self.poses: list[FramePose] = []
         self.stats = RunStats()
         self.backend_history: list[dict[str, Any]] = []
+        self.divergence = DivergenceMonitor()  # refuses implausible poses (mslam.system.divergence)
         self._init_candidate: Frame | None = None
         self._init_pending: list[Frame] = []
         self._rotation_only: np.ndarray | None = None
@@ -239,6 +241,7 @@ class SlamSystem:
                 self.T_WC_last = self.keyframes[k].T_WC.copy()
                 self.idx_f2k = None
                 self._record(frame, k, None, "relocalised")
+                self.divergence.reset()
                 self.mode = Mode.TRACKING
                 return "relocalised"
             self.stats.lost_frames += 1
@@ -316,6 +319,9 @@ class SlamSystem:
             return "lost"
         T_CkCf = np.asarray(T_CkCf, np.float64)
         T_WCf = sim3.mul(kf.T_WC, T_CkCf)
+        if not self.divergence.check(int(frame.index), T_WCf):
+            self._record(frame, -1, None, "lost")
+            return "lost"
         self.T_WC_last = T_WCf
         with self.timer("fusion"):
             X_kk = sim3.act(T_CkCf, _flat(p.X_ji))

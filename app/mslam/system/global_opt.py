@@ -13,7 +13,7 @@ made by the frontend or, with ``single_thread: False``, by ``mslam.system.worker
    every pixel by default); the poses are written back.
 
 Public names, in reading order:
-    backend_step, add_keyframe_edges, residual_grid, solve_backend
+    backend_step, add_keyframe_edges, loop_verifier, residual_grid, solve_backend
 """
 
 from __future__ import annotations
@@ -22,10 +22,11 @@ from typing import Any
 
 import numpy as np
 
+from mslam.system.divergence import guard_backend
 from mslam_ref import backend
 from mslam_ref.pointmap import strided_pixels
 
-__all__ = ["add_keyframe_edges", "backend_step", "residual_grid", "solve_backend"]
+__all__ = ["add_keyframe_edges", "backend_step", "loop_verifier", "residual_grid", "solve_backend"]
 
 
 def backend_step(system: Any, k: int) -> None:
@@ -64,8 +65,29 @@ def add_keyframe_edges(system: Any, k: int) -> int:
         kind="retrieval",
         known=system.last_pair(),
         stride=system.cfg.backend_pixel_stride(kf.shape),
+        verify=loop_verifier(system),
     )
     return len(system.graph) - before
+
+
+def loop_verifier(system: Any, check_rotation: bool = True):
+    """``edge -> bool``: :func:`mslam.system.loop_verify.verify_edge` on the system's keyframes;
+    each verdict is appended to ``system.loop_checks`` (``i``, ``j``, accepted, stats).
+    ``check_rotation=False`` for a relocalisation, whose new keyframe has no pose yet."""
+    from dataclasses import replace
+
+    from mslam.system.loop_verify import LoopVerifyConfig, verify_edge
+
+    cfg = LoopVerifyConfig() if check_rotation else replace(LoopVerifyConfig(), max_rot_deg=180.0)
+
+    checks = system.__dict__.setdefault("loop_checks", [])
+
+    def verify(edge: Any) -> bool:
+        ok, stats = verify_edge(edge, system.keyframes, system.backend_cfg.Q_conf, cfg)
+        checks.append({"i": int(edge.i), "j": int(edge.j), "accepted": ok, **stats})
+        return ok
+
+    return verify
 
 
 def residual_grid(shape: tuple[int, int], stride: int) -> np.ndarray:
@@ -98,8 +120,10 @@ def solve_backend(system: Any) -> dict[str, Any] | None:
     )
     T_new, info = system.kernels.backend.solve(T_WC, graph, system.backend_cfg)
     T_new = np.asarray(T_new, dtype=np.float64)
-    if not np.all(np.isfinite(T_new)):
-        raise FloatingPointError("backend.solve returned non-finite poses")
+    why = guard_backend(T_WC, T_new, tuple(info.costs), system.divergence.cfg)
+    if why is not None:  # keep the poses the solve started from (mslam.system.divergence)
+        system.divergence.events.append({"frame": -1, "reason": f"backend undone: {why}"})
+        T_new = T_WC
     with system.lock:
         system.keyframes.set_poses(T_new, np.arange(len(T_new)))
     system.stats.backend_solves += 1
@@ -110,6 +134,7 @@ def solve_backend(system: Any) -> dict[str, Any] | None:
         "cost": info.cost,
         "step_norms": list(info.step_norms),
         "failed": info.failed,
+        "undone": why,
     }
     system.backend_history.append(record)
     return record

@@ -283,6 +283,7 @@ class FactorGraph:
     edges: list[Edge] = field(default_factory=list)
     candidates_tested: int = 0
     candidates_rejected_early: int = 0
+    candidates_unverified: int = 0
 
     def __len__(self) -> int:
         return len(self.edges)
@@ -301,6 +302,7 @@ class FactorGraph:
         kind: str = "retrieval",
         known: dict[tuple[int, int], Any] | None = None,
         stride: int = 1,
+        verify: Any = None,
     ) -> bool:
         """Match candidate pairs and store the accepted edges; True if at least one was added.
 
@@ -310,6 +312,8 @@ class FactorGraph:
         consecutive (``i == j - 1``); with ``is_reloc`` (strict) any invalid edge rejects all.
         Consecutive edges get ``kind = "consecutive"``, the others ``kind``. ``known``: decodes
         already made, and ``stride``, the residual grid to match, as in :func:`match_decoded`.
+        ``verify(edge) -> bool``, when given, must also accept each non-consecutive edge
+        (``mslam.system.loop_verify``); its refusals are counted in ``candidates_unverified``.
         """
         fwd = [prior.pair(store[i].frame, store[j].frame) for i, j in zip(ii, jj)]
         # Early exit: a non-consecutive candidate whose forward decode cannot pass the quality
@@ -333,7 +337,10 @@ class FactorGraph:
                 e.kind = "consecutive"
             else:
                 e.kind = kind
-            keep.append(consecutive or e.match_frac >= min_match_frac)
+            ok = consecutive or e.match_frac >= min_match_frac
+            if ok and not consecutive and verify is not None and not verify(e):
+                ok, self.candidates_unverified = False, self.candidates_unverified + 1
+            keep.append(ok)
         if is_reloc and not all(keep):
             return False
         added = [e for e, k in zip(candidates, keep) if k]

@@ -154,11 +154,13 @@ def summary_dict(system: Any, meta: dict[str, Any], ev: dict[str, Any]) -> dict[
         "path_length": ev.get("path_length"),
         "path_length_est": ev.get("path_length_est"),
     }
+    from mslam.system.divergence import divergence_report
     from mslam.system.health import health_report
 
     out.update(
         health_report(system.poses, frames, out["frames_with_pose"], out["prior"], ev.get("ate"))
     )
+    out.update(divergence_report(system, out["warnings"]))
     if "ate" in ev:
         out["ate"] = ev["ate"]
         out["ate_rmse"] = ev["ate"]["ate_rmse"]

@@ -46,7 +46,7 @@ def relocalise(system: Any, frame: Frame) -> bool:
     Returns:
         whether the frame was relocalised.
     """
-    from mslam.system.global_opt import solve_backend
+    from mslam.system.global_opt import loop_verifier, solve_backend
 
     with system.timer("prior"):
         X, C = system.prior.mono(frame)
@@ -69,6 +69,7 @@ def relocalise(system: Any, frame: Frame) -> bool:
         is_reloc=False,
         kind="reloc",
         stride=system.cfg.backend_pixel_stride(system.keyframes[n].shape),
+        verify=loop_verifier(system, check_rotation=False),
     )
     accepted = [e.j for e in system.graph.edges[before:]]
     if not accepted or (system.cfg.reloc.strict and candidates[0] not in accepted):
