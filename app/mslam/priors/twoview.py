@@ -279,8 +279,9 @@ class TwoViewPrior:
         """``F_ij, F_ji, guided`` (:func:`guided_flow`, keypoints cached per image)."""
         kp = [None, None]
         if self.cfg.guide.enabled:
-            kp = [self._cached(("sift", hash(f.rgb.tobytes())),
-                               lambda f=f: sift_keypoints(f.rgb, self.cfg.guide))
+            # Keypoints are computed (once per image) only when a pair needs the guide.
+            kp = [lambda f=f: self._cached(("sift", hash(f.rgb.tobytes())),
+                                           lambda: sift_keypoints(f.rgb, self.cfg.guide))
                   for f in (frame_i, frame_j)]  # fmt: skip
         return guided_flow(frame_i.rgb, frame_j.rgb, *kp, self.cfg.fb_px, self.cfg.guide)
 

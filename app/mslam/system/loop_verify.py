@@ -40,15 +40,19 @@ class LoopVerifyConfig:
         inlier_rel: residual limit relative to the point's distance from camera i.
         min_inlier_frac: share of valid matches that must be inliers.
         max_rot_deg: largest disagreement of the fitted rotation with the current estimate.
+
+    Measured on the first 40 frames of the 7-Scenes kitchen (two-view prior, 160x120): edges
+    between keyframes a few frames apart had inlier shares 0.23-0.51 and rotations within
+    0.5-7° of the estimate; the edges that disagreed by 37-54° had shares 0.07-0.14.
         iterations: RANSAC hypotheses.
         max_points: valid matches used (a regular subsample beyond this).
         min_points: fewer valid matches and the edge is rejected.
         seed: RNG seed (runs stay deterministic).
     """
 
-    inlier_rel: float = 0.1
-    min_inlier_frac: float = 0.4
-    max_rot_deg: float = 30.0
+    inlier_rel: float = 0.15
+    min_inlier_frac: float = 0.25
+    max_rot_deg: float = 20.0
     iterations: int = 64
     max_points: int = 1500
     min_points: int = 12
