@@ -345,6 +345,7 @@ class TwoViewPrior:
             cands = pose_candidates(uv_i[inl], uv_j[inl], K, R, t, self.cfg.ransac_px)
             R, t, ambiguous = choose_pose(cands, uv_i[inl], uv_j[inl], K, z_i, z_j,
                                           self.cfg.ambiguity)  # fmt: skip
+            R, t = refine_pose(uv_i[inl], uv_j[inl], K, R, t)  # on all inliers
         else:
             R, t = refine_pose(uv_i[inl], uv_j[inl], K, R, t)
         parallax = homography_parallax(uv_i, uv_j, K, self.cfg.ransac_px)

@@ -58,6 +58,8 @@ class DivergenceConfig:
             keyframe spacings is undone.
         max_final_scale_ratio: in the final trajectory, a spread of the frames' Sim(3) scales
             beyond this factor is reported.
+        warn_refusals: refused frames that make a warning (fewer are listed in the events
+            only: a single refused frame followed by a relocalisation is a recovered run).
     """
 
     window: int = 20
@@ -67,6 +69,7 @@ class DivergenceConfig:
     max_final_jump: float = 50.0
     max_backend_move: float = 20.0
     max_final_scale_ratio: float = 1e3
+    warn_refusals: int = 3
 
 
 @dataclass
@@ -129,11 +132,12 @@ class DivergenceMonitor:
         return True
 
     def warnings(self) -> list[str]:
-        """One sentence per kind of event (refused frame poses, undone solves), or none."""
+        """One sentence per kind of event (at least ``warn_refusals`` refused frame poses;
+        any undone solve), or none."""
         out = []
         frames = [e for e in self.events if e["frame"] >= 0]
         solves = [e for e in self.events if e["frame"] < 0]
-        if frames:
+        if len(frames) >= self.cfg.warn_refusals:
             out.append(
                 f"{len(frames)} implausible frame pose(s) refused while running (first at "
                 f"frame {frames[0]['frame']}: {frames[0]['reason']}); tracking restarted "

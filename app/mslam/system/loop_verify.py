@@ -41,9 +41,11 @@ class LoopVerifyConfig:
         min_inlier_frac: share of valid matches that must be inliers.
         max_rot_deg: largest disagreement of the fitted rotation with the current estimate.
 
-    Measured on the first 40 frames of the 7-Scenes kitchen (two-view prior, 160x120): edges
-    between keyframes a few frames apart had inlier shares 0.23-0.51 and rotations within
-    0.5-7° of the estimate; the edges that disagreed by 37-54° had shares 0.07-0.14.
+    Measured on the 7-Scenes kitchen clip (two-view prior, 160x120, 2026-11-26): edges between
+    keyframes a few frames apart had inlier shares 0.22-0.72, while the fitted rotations
+    disagreed with the estimate by up to 44° although the estimated relative rotations were
+    within 0.6-7° of the ground truth: the uncalibrated pointmaps are too distorted for a
+    fine rotation test, so ``max_rot_deg`` only rejects gross disagreement.
         iterations: RANSAC hypotheses.
         max_points: valid matches used (a regular subsample beyond this).
         min_points: fewer valid matches and the edge is rejected.
@@ -52,7 +54,7 @@ class LoopVerifyConfig:
 
     inlier_rel: float = 0.15
     min_inlier_frac: float = 0.25
-    max_rot_deg: float = 20.0
+    max_rot_deg: float = 60.0
     iterations: int = 64
     max_points: int = 1500
     min_points: int = 12
