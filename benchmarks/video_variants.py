@@ -12,7 +12,9 @@ colour images in another order, with fresh timestamps at 30 Hz:
   and resolution; ``calib.yaml`` shifted accordingly).
 
 Usage: ``python benchmarks/video_variants.py OUT_DIR [--clip FOLDER] [--only NAME ...]``.
-Each variant then runs as ``mslam run OUT_DIR/NAME --prior twoview --out ...``.
+Each variant then runs as ``mslam run OUT_DIR/NAME --prior twoview --out RUN`` (``--calib
+OUT_DIR/NAME/calib.yaml`` for the calibrated run); ``--table RUN ...`` prints one row per run
+(posed share, ATE, keyframes, loop-closure edges, seconds per stage, warnings).
 """
 
 from __future__ import annotations
@@ -87,12 +89,35 @@ def write_variant(clip: Path, out: Path, name: str) -> Path:
     return dst
 
 
+def table_row(run: Path) -> str:
+    """One line of a run's ``summary.json``."""
+    import json
+
+    s = json.loads((run / "summary.json").read_text())
+    ate = s.get("ate_rmse")
+    stages = " ".join(f"{k}={v:.0f}" for k, v in s["stage_seconds"].items())
+    return (
+        f"{run.name}: posed {100 * s['frames_posed_fraction']:.1f} %, ATE "
+        f"{'-' if ate is None else f'{100 * ate:.2f} cm'}, {s['keyframes']} keyframes, "
+        f"{s['loop_closure_edges']} loop edges, {s['seconds']:.0f} s ({stages}), "
+        f"plausible {s['plausible']}, warnings {s['warnings']}"
+    )
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("out", type=Path)
+    ap.add_argument("out", type=Path, nargs="?")
+    ap.add_argument("--table", type=Path, nargs="*", default=None)
     ap.add_argument("--clip", type=Path, default=CLIP)
     ap.add_argument("--only", nargs="*", default=["fwd", "rev", "every2", "pingpong", "crop"])
     args = ap.parse_args(argv)
+    if args.table is not None:
+        for run in args.table:
+            print(table_row(run))
+        return 0
+    if args.out is None:
+        print("OUT_DIR: required unless --table", file=sys.stderr)
+        return 2
     if not args.clip.is_dir():
         print(f"{args.clip}: clip folder not found", file=sys.stderr)
         return 2
