@@ -139,8 +139,9 @@ ax[0].set_aspect("equal", adjustable="datalim")
 for kf, color in ((system.keyframes[0], "C0"), (system.keyframes[len(system.keyframes) - 1], "C3")):
     H, W = kf.shape
     z = kf.state.X_canon.reshape(H, W, 3)[..., 2] * kf.T_WC[7]
-    ok = (kf.frame.depth > 0) & (z > 0)
-    ax[1].plot(kf.frame.depth[ok][::7], z[ok][::7], ".", ms=2, color=color,
+    z_gt = depth_seq[kf.frame.index].depth
+    ok = (z_gt > 0) & (z > 0)
+    ax[1].plot(z_gt[ok][::7], z[ok][::7], ".", ms=2, color=color,
                label=f"keyframe at frame {kf.frame.index}")  # fmt: skip
 ax[1].set_xlabel("ground-truth depth (m)")
 ax[1].set_ylabel("pointmap depth x pose scale")
