@@ -221,96 +221,24 @@ def refine_pose(
     Returns:
         R_ji (3, 3), t_ji (3,) with ``‖t_ji‖ = 1`` (the input when the solver fails).
     """
+    from mslam.priors.twoview_lm import huber_lm, sampson_fn, so3_exp
+
     t0 = t_ji / np.linalg.norm(t_ji)
     B = np.linalg.svd(t0[None, :])[2][1:].T
-    residuals = _sampson_fn(uv_i, uv_j, K)
+    residuals = sampson_fn(uv_i, uv_j, K)
 
     def unpack(p):
         t = t0 + B @ p[3:]
-        return _so3_exp(p[:3]) @ R_ji, t / np.linalg.norm(t)
+        return so3_exp(p[:3]) @ R_ji, t / np.linalg.norm(t)
 
     def fun(P):  # (M, 5) parameter sets -> (M, N) residuals
         Rs, ts = zip(*(unpack(p) for p in P))
         return residuals(np.stack(Rs), np.stack(ts))
 
-    p = _huber_lm(fun, np.zeros(5), huber_px)
+    p = huber_lm(fun, np.zeros(5), huber_px)
     if p is None:
         return R_ji, t0
     return unpack(p)
-
-
-def _so3_exp(w: FloatArray) -> FloatArray:
-    """Rodrigues: (3,) rotation vector to (3, 3) matrix."""
-    th = float(np.linalg.norm(w))
-    Wx = np.array([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]])
-    if th < 1e-12:
-        return np.eye(3) + Wx
-    return np.eye(3) + np.sin(th) / th * Wx + (1 - np.cos(th)) / th**2 * (Wx @ Wx)
-
-
-def _sampson_fn(uv_i: FloatArray, uv_j: FloatArray, K: FloatArray):
-    """:func:`sampson_residuals` of M poses at once, the homogeneous pixels prepared once:
-    ``f(R (M, 3, 3), t (M, 3)) -> (M, N)``."""
-    Kinv = np.linalg.inv(K)
-    n = len(uv_i)
-    xi = np.column_stack([np.asarray(uv_i, np.float64).reshape(n, 2), np.ones(n)])
-    xj = np.column_stack([np.asarray(uv_j, np.float64).reshape(n, 2), np.ones(n)])
-
-    def f(R: FloatArray, t: FloatArray) -> FloatArray:
-        z = np.zeros(len(t))
-        tx = np.stack([np.stack([z, -t[:, 2], t[:, 1]], -1),
-                       np.stack([t[:, 2], z, -t[:, 0]], -1),
-                       np.stack([-t[:, 1], t[:, 0], z], -1)], 1)  # fmt: skip
-        F = Kinv.T @ tx @ R @ Kinv
-        out = np.empty((len(F), n))
-        for m, Fm in enumerate(F):  # 2-D products: BLAS (a stacked matmul was 2x slower)
-            Fxi, Ftxj = xi @ Fm.T, xj @ Fm
-            num = np.einsum("nk,nk->n", xj, Fxi)
-            den = np.sqrt(Fxi[:, 0] ** 2 + Fxi[:, 1] ** 2 + Ftxj[:, 0] ** 2 + Ftxj[:, 1] ** 2)
-            out[m] = num / np.maximum(den, 1e-12)
-        return out
-
-    return f
-
-
-def _huber_cost_sum(r: FloatArray, delta: float) -> float:
-    a = np.abs(r)
-    return float(np.sum(np.where(a < delta, 0.5 * a * a, delta * (a - 0.5 * delta))))
-
-
-def _huber_lm(fun, p0: FloatArray, delta: float, max_iters: int = 30, h: float = 1e-7):
-    """Minimise ``sum huber_delta(fun(p))`` by Levenberg–Marquardt on IRLS weights
-    ``w = min(1, delta / |r|)`` with a forward-difference Jacobian; a step is taken only when
-    it lowers the cost. ``fun`` maps (M, P) parameter sets to (M, N) residuals (the Jacobian's
-    P evaluations are one call). Returns p, or None when the residuals are not finite."""
-    p = np.asarray(p0, np.float64).copy()
-    r = fun(p[None])[0]
-    if not np.all(np.isfinite(r)):
-        return None
-    cost, lam = _huber_cost_sum(r, delta), 1e-3
-    for _ in range(max_iters):
-        J = ((fun(p[None] + h * np.eye(len(p))) - r[None]) / h).T  # (N, P)
-        w = np.minimum(1.0, delta / np.maximum(np.abs(r), 1e-15))
-        A = J.T @ (w[:, None] * J)
-        g = J.T @ (w * r)
-        improved = False
-        while lam < 1e10:
-            try:
-                dp = -np.linalg.solve(A + lam * np.diag(np.diag(A) + 1e-12), g)
-            except np.linalg.LinAlgError:
-                lam *= 10
-                continue
-            r_new = fun((p + dp)[None])[0]
-            c_new = _huber_cost_sum(r_new, delta) if np.all(np.isfinite(r_new)) else np.inf
-            if c_new < cost:
-                p, r, lam, improved = p + dp, r_new, max(lam / 10, 1e-9), True
-                done = cost - c_new <= 1e-10 * cost or float(np.linalg.norm(dp)) < 1e-10
-                cost = c_new
-                break
-            lam *= 10
-        if not improved or done:
-            break
-    return p
 
 
 def homography_parallax(
