@@ -40,13 +40,16 @@ from mslam.kernels import load_kernels
 from mslam.system import open_source, run_slam
 
 
-def keyframe_scale_spread(system) -> tuple[float, float]:
-    """Std of log keyframe pointmap scale vs ground-truth depth: (tracking only, final)."""
+def keyframe_scale_spread(system, depth_seq=None) -> tuple[float, float]:
+    """Std of log keyframe pointmap scale vs ground-truth depth: (tracking only, final).
+
+    ``depth_seq``: the same frames with depth (the two-view prior's frames carry none)."""
     out = []
     for attr in ("T_WC_init", "T_WC"):
         logs = []
         for kf in system.keyframes:
-            z_gt, (H, W) = kf.frame.depth, kf.shape
+            f = kf.frame if depth_seq is None else depth_seq[kf.frame.index]
+            z_gt, (H, W) = f.depth, kf.shape
             if z_gt is None:
                 return float("nan"), float("nan")
             z = kf.state.X_canon.reshape(H, W, 3)[..., 2]
@@ -68,7 +71,11 @@ def one_run(source: str, prior: str, calib: str | None = None, baseline: bool = 
     idx, ts, T = system.frame_poses()
     ate = evaluate.ate(ts, T, seq.timestamps, seq.T_WC) if len(ts) >= 3 else None
     path = float(np.linalg.norm(np.diff(seq.T_WC[:, :3], axis=0), axis=1).sum())
-    spread = keyframe_scale_spread(system)
+    try:  # the same frames with their depth, for the scale check only
+        depth_seq = open_source(source, cfg, calib, "rgbd").sequence
+    except ValueError:
+        depth_seq = None
+    spread = keyframe_scale_spread(system, depth_seq)
     row = {
         "prior": prior,
         "calibrated": system.K is not None,

@@ -252,7 +252,7 @@ class TwoViewPrior:
         F_ij, F_ji, guided = self._cached(key, lambda: self._flow(frame_i, frame_j))
         self.last_R_ji = None
         z_ref = [self._remembered_depth(f, F_ij.shape[:2]) for f in (frame_i, frame_j)]
-        R, t, n_inl, parallax, angle, ambiguous = self._pose(F_ij, F_ji, K, *z_ref)
+        R, t, n_inl, parallax, angle, ambiguous = self._pose_of(key, F_ij, F_ji, K, z_ref)
         self.last_info = {"inliers": n_inl, "parallax_px": parallax, "angle_deg": angle,
                           "guided": float(guided), "ambiguous": float(ambiguous)}  # fmt: skip
         if n_inl < cfg.min_inliers:
@@ -278,12 +278,32 @@ class TwoViewPrior:
         self._remember(frame_j, X_ji @ R.T + s * t, C_ji)  # X_jj = R_ji X_ji + s t_ji
         return X_ii, C_ii, X_ji, C_ji
 
+    def _reverse(self, key: tuple):
+        """The cached entry of the pair ``key`` in the other direction, or None."""
+        return self.cache.peek((key[0], key[2], key[1]))
+
+    def _pose_of(self, flow_key: tuple, F_ij, F_ji, K, z_ref):
+        """:meth:`_pose` of the pair, or the inverse of the pose already found for (j, i):
+        ``R_ij = R_jiᵀ``, ``t_ij = -R_jiᵀ t_ji`` (so both directions of an edge agree, and the
+        backward decode of a graph edge costs no second RANSAC and refinement)."""
+        key = ("pose", *flow_key[1:])
+        rev = self._reverse(key)
+        if rev is not None:
+            R, t, n_inl, parallax, angle, ambiguous = rev
+            return (R.T, -R.T @ t, n_inl, parallax, angle, ambiguous)
+        return self._cached(key, lambda: self._pose(F_ij, F_ji, K, *z_ref))
+
     def _flow(self, frame_i: Frame, frame_j: Frame):
-        """``F_ij, F_ji, guided`` (:func:`guided_flow`, keypoints cached per image)."""
+        """``F_ij, F_ji, guided`` (:func:`guided_flow`, keypoints cached per image), or the
+        flows already computed for (j, i), swapped."""
+        rev = self._reverse(("flow", hash(frame_i.rgb.tobytes()), hash(frame_j.rgb.tobytes())))
+        if rev is not None:
+            return rev[1], rev[0], rev[2]
         kp = [None, None]
         if self.cfg.guide.enabled:
-            kp = [self._cached(("sift", hash(f.rgb.tobytes())),
-                               lambda f=f: sift_keypoints(f.rgb, self.cfg.guide))
+            # Keypoints are computed (once per image) only when a pair needs the guide.
+            kp = [lambda f=f: self._cached(("sift", hash(f.rgb.tobytes())),
+                                           lambda: sift_keypoints(f.rgb, self.cfg.guide))
                   for f in (frame_i, frame_j)]  # fmt: skip
         return guided_flow(frame_i.rgb, frame_j.rgb, *kp, self.cfg.fb_px, self.cfg.guide)
 
@@ -325,6 +345,7 @@ class TwoViewPrior:
             cands = pose_candidates(uv_i[inl], uv_j[inl], K, R, t, self.cfg.ransac_px)
             R, t, ambiguous = choose_pose(cands, uv_i[inl], uv_j[inl], K, z_i, z_j,
                                           self.cfg.ambiguity)  # fmt: skip
+            R, t = refine_pose(uv_i[inl], uv_j[inl], K, R, t)  # on all inliers
         else:
             R, t = refine_pose(uv_i[inl], uv_j[inl], K, R, t)
         parallax = homography_parallax(uv_i, uv_j, K, self.cfg.ransac_px)

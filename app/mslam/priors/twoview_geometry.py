@@ -221,28 +221,24 @@ def refine_pose(
     Returns:
         R_ji (3, 3), t_ji (3,) with ``‖t_ji‖ = 1`` (the input when the solver fails).
     """
-    from scipy.optimize import least_squares
-    from scipy.spatial.transform import Rotation
+    from mslam.priors.twoview_lm import huber_lm, sampson_fn, so3_exp
 
     t0 = t_ji / np.linalg.norm(t_ji)
     B = np.linalg.svd(t0[None, :])[2][1:].T
+    residuals = sampson_fn(uv_i, uv_j, K)
 
     def unpack(p):
         t = t0 + B @ p[3:]
-        return Rotation.from_rotvec(p[:3]).as_matrix() @ R_ji, t / np.linalg.norm(t)
+        return so3_exp(p[:3]) @ R_ji, t / np.linalg.norm(t)
 
-    try:
-        res = least_squares(
-            lambda p: sampson_residuals(uv_i, uv_j, K, *unpack(p)),
-            np.zeros(5),
-            loss="huber",
-            f_scale=huber_px,
-        )
-    except (ValueError, np.linalg.LinAlgError):
+    def fun(P):  # (M, 5) parameter sets -> (M, N) residuals
+        Rs, ts = zip(*(unpack(p) for p in P))
+        return residuals(np.stack(Rs), np.stack(ts))
+
+    p = huber_lm(fun, np.zeros(5), huber_px)
+    if p is None:
         return R_ji, t0
-    if not np.all(np.isfinite(res.x)):
-        return R_ji, t0
-    return unpack(res.x)
+    return unpack(p)
 
 
 def homography_parallax(

@@ -36,6 +36,10 @@ from mslam_ref.conventions import FloatArray
 __all__ = ["choose_pose", "depth_disagreement", "pose_candidates"]
 
 
+#: Correspondences each hypothesis is refined on (a regular subsample of the inliers).
+REFINE_POINTS = 600
+
+
 def _huber_cost(r: FloatArray, delta: float) -> float:
     a = np.abs(r)
     return float(np.mean(np.where(a < delta, 0.5 * a**2, delta * (a - 0.5 * delta))))
@@ -84,8 +88,11 @@ def pose_candidates(
                 if np.linalg.norm(t) > 1e-9:  # zero translation: a rotation, no candidate
                     hyps.append((np.asarray(R, np.float64), t / np.linalg.norm(t)))
     out: list[tuple[FloatArray, FloatArray, float]] = []
+    # Hypotheses are refined on a regular subsample (REFINE_POINTS); the caller polishes the
+    # chosen one on all correspondences.
+    sub = np.linspace(0, len(uv_i) - 1, min(len(uv_i), REFINE_POINTS)).astype(np.int64)
     for R0, t0 in hyps:
-        R, t = refine_pose(uv_i, uv_j, K, R0, t0, huber_px)
+        R, t = refine_pose(uv_i[sub], uv_j[sub], K, R0, t0, huber_px)
         t = _front_sign(uv_i, uv_j, K, R, t)
         cost = _huber_cost(sampson_residuals(uv_i, uv_j, K, R, t), huber_px)
         dup = False

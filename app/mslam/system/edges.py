@@ -17,6 +17,7 @@ Public names, in reading order:
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -176,15 +177,18 @@ class EdgeBuilder:
         kind: str = "retrieval",
         known: KnownPairs | None = None,
         stride: int = 1,
-    ) -> tuple[list[Edge], int]:
-        """The candidate pairs' accepted edges, and how many were rejected before matching.
+        verify: Callable[[Edge], bool] | None = None,
+    ) -> tuple[list[Edge], int, int]:
+        """The candidate pairs' accepted edges, how many were rejected before matching, and how
+        many failed ``verify``.
 
         Upstream: global_opt.py::FactorGraph.add_factors (docs/upstream.md §7.3).
 
         Acceptance: an edge is kept when it is consecutive (``i == j - 1``, ``kind =
         "consecutive"``) or its ``match_frac >= min_match_frac`` (``kind`` as given). A
         non-consecutive candidate whose forward decode cannot pass the quality gate
-        (:func:`cannot_pass`) is rejected before its backward decode and matching.
+        (:func:`cannot_pass`) is rejected before its backward decode and matching. ``verify``
+        (``mslam.system.loop_verify``), when given, must also accept every non-consecutive edge.
         """
         fwd = self.decode(ii, jj)
         doomed = [
@@ -193,10 +197,14 @@ class EdgeBuilder:
         ]
         live = [e for e, d in enumerate(doomed) if not d]
         ii, jj, fwd = [ii[e] for e in live], [jj[e] for e in live], [fwd[e] for e in live]
-        keep = []
+        keep, unverified = [], 0
         for e in self.match(ii, jj, fwd, known, stride):
             consecutive = e.i == e.j - 1
             e.kind = "consecutive" if consecutive else kind
-            if consecutive or e.match_frac >= min_match_frac:
-                keep.append(e)
-        return keep, sum(doomed)
+            if not consecutive and e.match_frac < min_match_frac:
+                continue
+            if not consecutive and verify is not None and not verify(e):
+                unverified += 1
+                continue
+            keep.append(e)
+        return keep, sum(doomed), unverified

@@ -42,6 +42,7 @@ from mslam.config import SlamConfig
 from mslam.datasets.frame import Frame
 from mslam.kernels import KernelSet
 from mslam.priors.base import PairPrediction, Prior
+from mslam.system.divergence import DivergenceMonitor
 from mslam.system.edges import KnownPairs
 from mslam.system.global_opt import Backend
 from mslam.system.graph import FactorGraph
@@ -106,7 +107,8 @@ class SlamSystem:
         self.K = None if not cfg.use_calib else np.asarray(K, dtype=np.float64)
         self.prior: Prior = prior if cfg.single_thread else SharedPrior(prior)
         self.stats = RunStats()
-        self.backend = Backend(cfg, kernels, self.prior, self.K, self.stats)
+        self.divergence = DivergenceMonitor()  # refuses implausible poses (system.divergence)
+        self.backend = Backend(cfg, kernels, self.prior, self.K, self.stats, self.divergence)
         self.tracker = Tracker(cfg, kernels, self.K, self.stats, self.backend.lock)
         self.worker = None if cfg.single_thread else BackendWorker(self.backend.step)
         self.mode = Mode.INIT
@@ -185,6 +187,7 @@ class SlamSystem:
         k = len(self.keyframes) - 1
         self.T_WC_last = self.keyframes[k].T_WC.copy()
         self.tracker.idx_f2k = None
+        self.divergence.reset()
         self.record(frame, k, None, FrameStatus.RELOCALISED)
         self.mode = Mode.TRACKING
         return FrameStatus.RELOCALISED
@@ -213,7 +216,9 @@ class SlamSystem:
         kf_idx, p, fallback = pair.kf_idx, pair.p, pair.fallback
         kf = self.keyframes[kf_idx]
         self.tracking_pair = (int(frame.index), int(kf.frame.index), p)
-        result = self.tracker.track(kf, p, self.T_WC_last)
+        result = self.tracker.track(
+            kf, p, self.T_WC_last, lambda T_WC: self.divergence.check(int(frame.index), T_WC)
+        )
         if result is None:
             self.record(frame, -1, None, FrameStatus.LOST)
             return FrameStatus.LOST

@@ -21,6 +21,8 @@ Public names, in reading order:
 from __future__ import annotations
 
 import threading
+from collections.abc import Callable
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -29,9 +31,11 @@ from mslam.config import SlamConfig
 from mslam.datasets.frame import Frame
 from mslam.kernels import KernelSet
 from mslam.priors.base import Prior
-from mslam.system.edges import EdgeBuilder, KnownPairs
+from mslam.system.divergence import DivergenceMonitor, guard_backend
+from mslam.system.edges import Edge, EdgeBuilder, KnownPairs
 from mslam.system.graph import FactorGraph
 from mslam.system.keyframes import Keyframe, KeyframeStore
+from mslam.system.loop_verify import LoopVerifyConfig, verify_edge
 from mslam.system.retrieval_features import RetrievalIndex
 from mslam.system.state import RunStats
 from mslam.system.tracker import flat
@@ -61,6 +65,7 @@ class Backend:
         prior: the prior (shared with the frontend; serialised when the backend has a thread).
         K: (3, 3) intrinsics in calibrated mode, else None.
         stats: the run's counters and stage timers.
+        divergence: the run's divergence watch (a solve that would diverge is undone).
     """
 
     def __init__(
@@ -70,8 +75,10 @@ class Backend:
         prior: Prior,
         K: FloatArray | None,
         stats: RunStats,
+        divergence: DivergenceMonitor,
     ) -> None:
         self.cfg, self.kernels, self.K, self.stats = cfg, kernels, K, stats
+        self.divergence = divergence
         self.prior = prior
         self.backend_cfg = cfg.backend()
         self.fusion_cfg = cfg.fusion()
@@ -83,6 +90,8 @@ class Backend:
             self.keyframes, prior, kernels, cfg.matching(), self.backend_cfg.Q_conf
         )
         self.history: list[dict[str, Any]] = []
+        #: Every loop-closure verdict (``i``, ``j``, ``accepted``, the fit's statistics).
+        self.loop_checks: list[dict[str, Any]] = []
 
     def add_keyframe(
         self,
@@ -161,8 +170,24 @@ class Backend:
             min_match_frac=self.backend_cfg.min_match_frac,
             known=known,
             stride=self.cfg.backend_pixel_stride(kf.shape),
+            verify=self.loop_verifier(),
         )
         return len(self.graph) - before
+
+    def loop_verifier(self, check_rotation: bool = True) -> Callable[[Edge], bool]:
+        """``edge -> bool``: :func:`mslam.system.loop_verify.verify_edge` on the keyframes;
+        each verdict is appended to :attr:`loop_checks`. ``check_rotation=False`` for a
+        relocalisation, whose new keyframe has no pose yet."""
+        cfg = (
+            LoopVerifyConfig() if check_rotation else replace(LoopVerifyConfig(), max_rot_deg=180.0)
+        )
+
+        def verify(edge: Edge) -> bool:
+            ok, stats = verify_edge(edge, self.keyframes, self.backend_cfg.Q_conf, cfg)
+            self.loop_checks.append({"i": int(edge.i), "j": int(edge.j), "accepted": ok, **stats})
+            return ok
+
+        return verify
 
     def solve(self) -> dict[str, Any] | None:
         """Global Gauss–Newton over every keyframe with an edge; writes the poses back.
@@ -184,8 +209,10 @@ class Backend:
         )
         T_new, info = self.kernels.backend.solve(T_WC, graph, self.backend_cfg)
         T_new = np.asarray(T_new, dtype=np.float64)
-        if not np.all(np.isfinite(T_new)):
-            raise FloatingPointError("backend.solve returned non-finite poses")
+        why = guard_backend(T_WC, T_new, tuple(info.costs), self.divergence.cfg)
+        if why is not None:  # keep the poses the solve started from (mslam.system.divergence)
+            self.divergence.events.append({"frame": -1, "reason": f"backend undone: {why}"})
+            T_new = T_WC
         with self.lock:
             self.keyframes.set_poses(T_new, np.arange(len(T_new)))
         self.stats.backend_solves += 1
@@ -196,6 +223,7 @@ class Backend:
             "cost": info.cost,
             "step_norms": list(info.step_norms),
             "failed": info.failed,
+            "undone": why,
         }
         self.history.append(record)
         return record

@@ -11,6 +11,7 @@ Public names, in reading order:
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from types import SimpleNamespace
 
@@ -33,6 +34,7 @@ class FactorGraph:
     edges: list[Edge] = field(default_factory=list)
     candidates_tested: int = 0
     candidates_rejected_early: int = 0
+    candidates_unverified: int = 0
 
     def __len__(self) -> int:
         return len(self.edges)
@@ -46,16 +48,20 @@ class FactorGraph:
         kind: str = "retrieval",
         known: KnownPairs | None = None,
         stride: int = 1,
+        verify: Callable[[Edge], bool] | None = None,
     ) -> bool:
         """Make the candidate edges (ii[e], jj[e]) and store the accepted ones; True if any.
 
         Upstream: global_opt.py::FactorGraph.add_factors (docs/upstream.md §7.3); the rule is
         :meth:`~mslam.system.edges.EdgeBuilder.accepted` (``known``: decodes already made;
-        ``stride``: the residual grid to match).
+        ``stride``: the residual grid to match; ``verify``: the loop-closure check).
         """
-        added, rejected_early = builder.accepted(ii, jj, min_match_frac, kind, known, stride)
+        added, early, unverified = builder.accepted(
+            ii, jj, min_match_frac, kind, known, stride, verify
+        )
         self.candidates_tested += len(ii)
-        self.candidates_rejected_early += rejected_early
+        self.candidates_rejected_early += early
+        self.candidates_unverified += unverified
         self.edges.extend(added)
         return bool(added)
 

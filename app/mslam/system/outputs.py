@@ -169,10 +169,19 @@ def summary_dict(system: SlamSystem, meta: dict[str, Any], ev: dict[str, Any]) -
         "path_length": ev.get("path_length"),
         "path_length_est": ev.get("path_length_est"),
     }
+    from mslam.system.divergence import divergence_report
     from mslam.system.health import health_report
 
     out.update(
         health_report(system.poses, frames, out["frames_with_pose"], out["prior"], ev.get("ate"))
+    )
+    out.update(
+        divergence_report(
+            system.divergence,
+            system.backend.loop_checks,
+            system.frame_poses()[2],
+            out["warnings"],
+        )
     )
     if "ate" in ev:
         out["ate"] = ev["ate"]

@@ -64,6 +64,7 @@ def relocalise(frame: Frame, prior: Prior, backend: Backend, cfg: RelocConfig) -
         min_match_frac=cfg.min_match_frac,
         kind="reloc",
         stride=backend.cfg.backend_pixel_stride(backend.keyframes[n].shape),
+        verify=backend.loop_verifier(check_rotation=False),
     )
     accepted = [e.j for e in backend.graph.edges[before:]]
     if not accepted or (cfg.strict and candidates[0] not in accepted):

@@ -12,8 +12,8 @@ error (``ValueError``/``FileNotFoundError``) and no output is written:
 * ``--calib FILE`` (upstream: forces ``use_calib``) sets the intrinsics; its ``width``/``height``
   must match the images. ``use_calib`` without any intrinsics is an error.
 * Prior: ``synthetic`` for synthetic sources, ``rgbd`` when the frames carry depth, otherwise
-  ``mast3r`` or ``twoview`` (RGB only, ignores depth; K only when calibrated) must be asked
-  for explicitly; a depth-less source without one is an error.
+  ``mast3r`` or ``twoview`` (RGB only: the depth files of the source are never read; K only
+  when calibrated) must be asked for explicitly; a depth-less source without one is an error.
 * ``dataset.long_side`` shrinks frames (never enlarges) so the long side has that many pixels,
   with the intrinsics rescaled; ``dataset.subsample`` keeps every n-th frame.
 
@@ -132,6 +132,8 @@ def open_source(
         )
     if prior_name == "synthetic" and (seq.T_WC is None or seq.K is None):
         raise ValueError(f"{source}: the synthetic prior needs ground-truth poses and intrinsics")
+    if prior_name == "twoview" and getattr(seq, "depth_paths", None) is not None:
+        seq.depth_paths, seq.has_depth = None, False  # RGB only: no depth file is ever read
     if cfg.dataset.subsample > 1:
         seq = SubsampledSequence(seq, cfg.dataset.subsample)
     long_side = cfg.dataset.long_side

@@ -20,6 +20,7 @@ Public names, in reading order:
 from __future__ import annotations
 
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -106,7 +107,13 @@ class Tracker:
         #: (H·W,) for every keyframe pixel, its match in the last frame (upstream ``idx_f2k``).
         self.idx_f2k: np.ndarray | None = None
 
-    def track(self, kf: Keyframe, p: PairPrediction, T_WC_last: FloatArray) -> TrackResult | None:
+    def track(
+        self,
+        kf: Keyframe,
+        p: PairPrediction,
+        T_WC_last: FloatArray,
+        plausible: Callable[[FloatArray], bool] | None = None,
+    ) -> TrackResult | None:
         """Track one frame against ``kf`` given the decode ``p = prior.pair(frame, kf)``.
 
         Upstream: tracker.py::FrameTracker.track. Fuses the frame into ``kf``'s pointmap.
@@ -115,6 +122,8 @@ class Tracker:
             kf: the keyframe.
             p: the pair's decode in the keyframe's camera.
             T_WC_last: (8,) the last frame's world pose (the constant-position guess).
+            plausible: ``T_WC -> bool``, the divergence watch; a refused pose is not fused
+                and the frame is lost (``mslam.system.divergence``).
 
         Returns:
             the pose and the keyframe test's answer, or None when the frame is lost.
@@ -149,11 +158,14 @@ class Tracker:
         if info.failed or not np.all(np.isfinite(T_CkCf)):
             return None
         T_CkCf = np.asarray(T_CkCf, np.float64)
+        T_WC = sim3.mul(kf.T_WC, T_CkCf)
+        if plausible is not None and not plausible(T_WC):
+            return None
         self._fuse(kf, p, T_CkCf)
         wants = tracking.needs_new_keyframe(
             grid_cells(idx_f2k[g], (H, W), stride), valid_match_k[g], valid_kf[on], cfg
         )
-        return TrackResult(T_CkCf, sim3.mul(kf.T_WC, T_CkCf), bool(wants))
+        return TrackResult(T_CkCf, T_WC, bool(wants))
 
     def _match(
         self, p: PairPrediction, grid: np.ndarray, stride: int

@@ -1,0 +1,239 @@
+"""Divergence watch — a run that goes wrong says so, while it runs and in ``summary.json``.
+
+A monocular run has no metric scale, so "wrong" is judged against the run's own recent motion,
+never against a number of metres:
+
+* a pose that is not finite, or whose Sim(3) scale is not positive and finite;
+* a frame whose camera centre moved more than ``jump_factor`` times the median step of the
+  last ``window`` accepted frames (and more than ``min_jump_frac`` of the extent of the
+  trajectory so far, so that a camera starting to move after standing still is no jump);
+* a frame whose Sim(3) scale changed by more than a factor ``max_scale_ratio`` from the
+  previous accepted frame.
+
+:class:`DivergenceMonitor` is fed every tracked pose (``check``) and refuses implausible ones;
+the frontend then treats the frame as lost (relocalisation follows), and the monitor keeps a
+record of every refusal (``events``). :func:`guard_backend` decides whether a global solve is
+kept: a solve whose final cost exceeds its first, or that moves a keyframe by more than
+``jump_factor`` times the keyframes' median spacing, is undone. :func:`trajectory_warnings`
+checks the final per-frame trajectory the same way (non-finite, jumps, a spread far beyond the
+path's steps), for the summary's ``warnings``.
+
+Public names, in reading order:
+    DivergenceConfig, DivergenceMonitor, guard_backend, trajectory_warnings, divergence_report
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from mslam_ref.conventions import FloatArray
+
+__all__ = [
+    "DivergenceConfig",
+    "DivergenceMonitor",
+    "divergence_report",
+    "guard_backend",
+    "trajectory_warnings",
+]
+
+
+@dataclass(frozen=True)
+class DivergenceConfig:
+    """Thresholds of the divergence watch (module docstring).
+
+    Attributes:
+        window: accepted frames whose steps give the "recent motion".
+        jump_factor: a step longer than this many recent median steps is a jump.
+        min_jump_frac: ... and longer than this share of the trajectory's extent so far.
+        max_scale_ratio: a frame-to-frame Sim(3) scale change beyond this factor is refused
+            (loose: with the two-view prior each pair has its own normalisation, and factors
+            up to ~10 between consecutive frames were seen on well-tracked 7-Scenes frames).
+        max_final_jump: in the final trajectory, a step longer than this many median steps
+            is reported.
+        max_backend_move: a global solve that moves a keyframe by more than this many median
+            keyframe spacings is undone.
+        max_final_scale_ratio: in the final trajectory, a spread of the frames' Sim(3) scales
+            beyond this factor is reported.
+        warn_refusals: refused frames that make a warning (fewer are listed in the events
+            only: a single refused frame followed by a relocalisation is a recovered run).
+    """
+
+    window: int = 20
+    jump_factor: float = 25.0
+    min_jump_frac: float = 0.5
+    max_scale_ratio: float = 100.0
+    max_final_jump: float = 50.0
+    max_backend_move: float = 20.0
+    max_final_scale_ratio: float = 1e3
+    warn_refusals: int = 3
+
+
+@dataclass
+class DivergenceMonitor:
+    """Refuses implausible frame poses (module docstring); keeps a record of each refusal.
+
+    Attributes:
+        cfg: thresholds.
+        events: one dict per refused frame or undone solve (``frame``, ``reason``).
+    """
+
+    cfg: DivergenceConfig = field(default_factory=DivergenceConfig)
+    events: list[dict[str, Any]] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        self._centres: deque = deque(maxlen=self.cfg.window + 1)
+        self._lo = np.full(3, np.inf)
+        self._hi = np.full(3, -np.inf)
+        self._last_scale: float | None = None
+
+    def reset(self) -> None:
+        """Forget recent motion (after a relocalisation the path restarts elsewhere)."""
+        self._centres.clear()
+        self._last_scale = None
+
+    def reason(self, T_WC: FloatArray) -> str | None:
+        """Why pose ``T_WC`` (8,) is implausible given recent motion, or None if it is not."""
+        T = np.asarray(T_WC, dtype=np.float64)
+        if T.shape != (8,) or not np.all(np.isfinite(T)):
+            return "non-finite pose"
+        s = float(T[7])
+        if not s > 0:
+            return f"non-positive scale {s:.3g}"
+        if self._last_scale is not None:
+            ratio = max(s / self._last_scale, self._last_scale / s)
+            if ratio > self.cfg.max_scale_ratio:
+                return f"scale changed by a factor {ratio:.3g} in one frame"
+        if len(self._centres) >= 3:
+            c = np.asarray(self._centres)
+            steps = np.linalg.norm(np.diff(c, axis=0), axis=1)
+            step = float(np.linalg.norm(T[:3] - c[-1]))
+            extent = float(np.linalg.norm(self._hi - self._lo))
+            limit = max(
+                self.cfg.jump_factor * float(np.median(steps)), self.cfg.min_jump_frac * extent
+            )
+            if step > limit and step > 0:
+                return f"camera moved {step:.3g} in one frame (recent median step {np.median(steps):.3g})"
+        return None
+
+    def check(self, frame: int, T_WC: FloatArray) -> bool:
+        """Accept (True, and remember) or refuse (False, and record an event) a frame pose."""
+        why = self.reason(T_WC)
+        if why is not None:
+            self.events.append({"frame": int(frame), "reason": why})
+            return False
+        T = np.asarray(T_WC, dtype=np.float64)
+        self._centres.append(T[:3].copy())
+        self._lo, self._hi = np.minimum(self._lo, T[:3]), np.maximum(self._hi, T[:3])
+        self._last_scale = float(T[7])
+        return True
+
+    def warnings(self) -> list[str]:
+        """One sentence per kind of event (at least ``warn_refusals`` refused frame poses;
+        any undone solve), or none."""
+        out = []
+        frames = [e for e in self.events if e["frame"] >= 0]
+        solves = [e for e in self.events if e["frame"] < 0]
+        if len(frames) >= self.cfg.warn_refusals:
+            out.append(
+                f"{len(frames)} implausible frame pose(s) refused while running (first at "
+                f"frame {frames[0]['frame']}: {frames[0]['reason']}); tracking restarted "
+                "from relocalisation"
+            )
+        if solves:
+            out.append(f"{len(solves)} global solve(s) undone (first: {solves[0]['reason']})")
+        return out
+
+
+def _median_spacing(P: FloatArray) -> float:
+    if len(P) < 2:
+        return 0.0
+    return float(np.median(np.linalg.norm(np.diff(P, axis=0), axis=1)))
+
+
+def guard_backend(
+    T_old: FloatArray, T_new: FloatArray, costs: tuple[float, ...], cfg: DivergenceConfig
+) -> str | None:
+    """Why a global solve must be undone, or None to keep it.
+
+    Args:
+        T_old, T_new: (K, 8) keyframe poses before and after the solve.
+        costs: the solve's cost per iteration (before each update), first to last.
+        cfg: ``max_backend_move``.
+
+    Returns:
+        a reason (non-finite result, cost increased, a keyframe moved too far) or None.
+    """
+    T_old, T_new = np.asarray(T_old, np.float64), np.asarray(T_new, np.float64)
+    if not np.all(np.isfinite(T_new)) or not np.all(T_new[:, 7] > 0):
+        return "the solve returned non-finite poses or scales"
+    if len(costs) >= 2 and np.isfinite(costs[0]) and not costs[-1] <= costs[0] * (1 + 1e-6):
+        return f"the solve's cost rose from {costs[0]:.4g} to {costs[-1]:.4g}"
+    spacing = _median_spacing(T_old[:, :3])
+    if spacing > 0:
+        move = float(np.max(np.linalg.norm(T_new[:, :3] - T_old[:, :3], axis=1)))
+        if move > cfg.max_backend_move * spacing:
+            return f"the solve moved a keyframe by {move / spacing:.3g} keyframe spacings"
+    return None
+
+
+def trajectory_warnings(T_WC: FloatArray, cfg: DivergenceConfig = DivergenceConfig()) -> list[str]:
+    """Warnings about a final per-frame trajectory (M, 8): non-finite poses, jumps far beyond
+    its median step, a spread far beyond its path length allows."""
+    T = np.asarray(T_WC, dtype=np.float64).reshape(-1, 8)
+    if len(T) == 0:
+        return []
+    finite = np.all(np.isfinite(T), axis=1)
+    out = []
+    if not finite.all():
+        out.append(f"{int((~finite).sum())} frame pose(s) are not finite")
+    P = T[finite, :3]
+    if len(P) < 3:
+        return out
+    steps = np.linalg.norm(np.diff(P, axis=0), axis=1)
+    # The first quarter's median too: a run that diverges for most of its frames has a large
+    # overall median step.
+    med = min(float(np.median(steps)), float(np.median(steps[: max(1, len(steps) // 4)])))
+    if med > 0 and steps.max() > cfg.max_final_jump * med:
+        k = int(np.argmax(steps))
+        out.append(
+            f"the trajectory jumps {steps.max() / med:.3g} median steps between posed frames "
+            f"{k} and {k + 1}; positions after a jump are not trustworthy"
+        )
+    s = T[finite, 7]
+    if np.all(s > 0) and s.max() / s.min() > cfg.max_final_scale_ratio:
+        out.append(
+            f"the frames' Sim(3) scale spans a factor {s.max() / s.min():.3g}; the map's scale "
+            "drifted or collapsed"
+        )
+    return out
+
+
+def divergence_report(
+    monitor: DivergenceMonitor,
+    loop_checks: list[dict[str, Any]],
+    T_WC: FloatArray,
+    warnings: list[str],
+) -> dict[str, Any]:
+    """The summary's divergence fields: ``warnings`` (the given ones plus the monitor's and
+    :func:`trajectory_warnings`' of the final frame poses), ``plausible`` (no warning) and
+    ``divergence_events`` (the monitor's refusals and undone solves), and the loop-closure
+    verdicts of ``mslam.system.loop_verify`` (``loop_closure_checks``, refusals counted).
+
+    Args:
+        monitor: the run's monitor (refusals and undone solves in ``events``).
+        loop_checks: the loop-closure verdicts (``Backend.loop_checks``).
+        T_WC: (M, 8) the final per-frame poses.
+        warnings: the warnings found so far (``mslam.system.health.health_report``).
+    """
+    out = [*warnings, *monitor.warnings(), *trajectory_warnings(T_WC)]
+    return {
+        "warnings": out,
+        "plausible": not out,
+        "divergence_events": list(monitor.events),
+        "loop_closure_candidates_unverified": sum(not c["accepted"] for c in loop_checks),
+        "loop_closure_checks": loop_checks,
+    }

@@ -1,0 +1,130 @@
+"""Variants of a 7-Scenes clip for testing RGB-only SLAM on video nobody tuned to.
+
+Writes TUM-layout folders (``rgb.txt``, ``groundtruth.txt``, ``calib.yaml``; no depth, so
+every prior but ``twoview`` refuses them) whose images are symbolic links to the clip's
+colour images in another order, with fresh timestamps at 30 Hz:
+
+* ``fwd`` — the clip as it is;
+* ``rev`` — played backwards;
+* ``every2`` — every second frame (twice the motion per frame);
+* ``pingpong`` — forward then backward (``2N - 1`` frames, a closed loop);
+* ``crop`` — the central 480x360 pixels of each image, written as PNG (other field of view
+  and resolution; ``calib.yaml`` shifted accordingly).
+
+Usage: ``python benchmarks/video_variants.py OUT_DIR [--clip FOLDER] [--only NAME ...]``.
+Each variant then runs as ``mslam run OUT_DIR/NAME --prior twoview --out RUN`` (``--calib
+OUT_DIR/NAME/calib.yaml`` for the calibrated run); ``--table RUN ...`` prints one row per run
+(posed share, ATE, keyframes, loop-closure edges, seconds per stage, warnings).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import cv2
+
+from mslam.datasets.readers import matrix_to_T_WC, natsorted, read_pose_matrix
+
+CLIP = Path(__file__).resolve().parents[2] / "shared/data/seq/7scenes_redkitchen_f000000-000149"
+
+#: Frame period of the written timestamps (s).
+DT = 1.0 / 30.0
+
+#: Size of the ``crop`` variant (pixels, centred).
+CROP_WH = (480, 360)
+
+
+def _orders(n: int) -> dict[str, list[int]]:
+    """Frame orders of the variants that only reorder the clip's images."""
+    return {
+        "fwd": list(range(n)),
+        "rev": list(range(n - 1, -1, -1)),
+        "every2": list(range(0, n, 2)),
+        "pingpong": list(range(n)) + list(range(n - 2, -1, -1)),
+    }
+
+
+def _pose_line(path: Path) -> str:
+    """``tx ty tz qx qy qz qw`` of a 7-Scenes 4x4 camera-to-world pose file."""
+    T = matrix_to_T_WC(read_pose_matrix(path))
+    return " ".join(f"{v:.9f}" for v in T[:7])
+
+
+def write_variant(clip: Path, out: Path, name: str) -> Path:
+    """Write variant ``name`` of ``clip`` into ``out / name``; returns that folder."""
+    rgb = natsorted(clip.glob("frame-*.color.*"))
+    order = _orders(len(rgb)).get(name, list(range(len(rgb))))
+    dst = out / name
+    (dst / "rgb").mkdir(parents=True, exist_ok=True)
+    fx, fy, cx, cy = 585.0, 585.0, 320.0, 240.0
+    rgb_lines, gt_lines = [], []
+    for k, i in enumerate(order):
+        src = rgb[i]
+        stem = src.name.split(".color.")[0]
+        t = k * DT
+        if name == "crop":
+            img = cv2.imread(str(src))
+            H, W = img.shape[:2]
+            x0, y0 = (W - CROP_WH[0]) // 2, (H - CROP_WH[1]) // 2
+            link = dst / "rgb" / f"{k:06d}.png"
+            cv2.imwrite(str(link), img[y0 : y0 + CROP_WH[1], x0 : x0 + CROP_WH[0]])
+        else:
+            link = dst / "rgb" / f"{k:06d}{src.suffix}"
+            if link.is_symlink() or link.exists():
+                link.unlink()
+            link.symlink_to(src.resolve())
+        rgb_lines.append(f"{t:.6f} rgb/{link.name}")
+        gt_lines.append(f"{t:.6f} " + _pose_line(clip / f"{stem}.pose.txt"))
+    w, h = (640, 480)
+    if name == "crop":
+        cx, cy = cx - (w - CROP_WH[0]) // 2, cy - (h - CROP_WH[1]) // 2
+        w, h = CROP_WH
+    (dst / "rgb.txt").write_text("\n".join(rgb_lines) + "\n")
+    (dst / "groundtruth.txt").write_text("\n".join(gt_lines) + "\n")
+    (dst / "calib.yaml").write_text(
+        f"width: {w}\nheight: {h}\ncalibration: {[fx, fy, cx, cy]}\ndepth_scale: 1000.0\n"
+    )
+    return dst
+
+
+def table_row(run: Path) -> str:
+    """One line of a run's ``summary.json``."""
+    import json
+
+    s = json.loads((run / "summary.json").read_text())
+    ate = s.get("ate_rmse")
+    stages = " ".join(f"{k}={v:.0f}" for k, v in s["stage_seconds"].items())
+    return (
+        f"{run.name}: posed {100 * s['frames_posed_fraction']:.1f} %, ATE "
+        f"{'-' if ate is None else f'{100 * ate:.2f} cm'}, {s['keyframes']} keyframes, "
+        f"{s['loop_closure_edges']} loop edges, {s['seconds']:.0f} s ({stages}), "
+        f"plausible {s['plausible']}, warnings {s['warnings']}"
+    )
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("out", type=Path, nargs="?")
+    ap.add_argument("--table", type=Path, nargs="*", default=None)
+    ap.add_argument("--clip", type=Path, default=CLIP)
+    ap.add_argument("--only", nargs="*", default=["fwd", "rev", "every2", "pingpong", "crop"])
+    args = ap.parse_args(argv)
+    if args.table is not None:
+        for run in args.table:
+            print(table_row(run))
+        return 0
+    if args.out is None:
+        print("OUT_DIR: required unless --table", file=sys.stderr)
+        return 2
+    if not args.clip.is_dir():
+        print(f"{args.clip}: clip folder not found", file=sys.stderr)
+        return 2
+    for name in args.only:
+        print(write_variant(args.clip, args.out, name))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
