@@ -152,7 +152,9 @@ class SlamConfig:
         budget = int(dict(self.sections.get(section, {})).get(key, 0))
         if budget <= 0:
             return 1
-        return max(1, int((shape[0] * shape[1] / budget) ** 0.5))
+        # The nearest stride (not the largest keeping >= budget pixels): the grid holds between
+        # half and twice the budget once the stride exceeds 1.
+        return max(1, round((shape[0] * shape[1] / budget) ** 0.5))
 
     def backend_pixel_stride(self, shape: tuple[int, int]) -> int:
         """Stride of the pixel grid that keeps about ``local_opt.pixels_per_edge`` residuals
@@ -165,6 +167,13 @@ class SlamConfig:
         ``tracking.pixels_per_frame`` pixels of an (H, W) keyframe (1 = every pixel, also
         when the key is 0, upstream's choice)."""
         return self._grid_stride("tracking", "pixels_per_frame", shape)
+
+    def keyframe_cell_stride(self, shape: tuple[int, int]) -> int:
+        """Side of the cells in which the new-keyframe test counts distinct frame pixels: about
+        ``tracking.keyframe_cells`` cells over an (H, W) frame, never finer than the tracking
+        grid (its stride when the key is 0)."""
+        cells = self._grid_stride("tracking", "keyframe_cells", shape)
+        return max(cells, self.tracking_pixel_stride(shape))
 
     def retrieval(self) -> Any:
         """``mslam_ref.retrieval.RetrievalConfig`` from ``retrieval.*`` (the one place the

@@ -172,6 +172,7 @@ def needs_new_keyframe(
     valid_match_k: BoolArray,
     valid_kf: BoolArray,
     cfg: TrackingConfig = TrackingConfig(),
+    n_cells: int | None = None,
 ) -> bool:
     """New-keyframe test: too few good matches or too few distinct frame pixels reached.
 
@@ -179,7 +180,7 @@ def needs_new_keyframe(
     *frame* pixels, the paper says keyframe pixels).
 
         match_frac_k  = mean(valid_kf)
-        unique_frac_f = |unique(idx_f2k[valid_match_k])| / N
+        unique_frac_f = |unique(idx_f2k[valid_match_k])| / n_cells
         new_kf = min(match_frac_k, unique_frac_f) < match_frac_thresh
 
     Args:
@@ -187,6 +188,8 @@ def needs_new_keyframe(
         valid_match_k: (N,) bool.
         valid_kf: (N,) bool from :func:`tracking_masks`.
         cfg: ``match_frac_thresh`` (0.333).
+        n_cells: the number of values ``idx_f2k`` can take, when it holds the cells the frame
+            pixels fall in rather than the pixels (``1 <= n_cells <= N``; default N).
 
     Returns:
         True when the frame should become a keyframe.
@@ -199,8 +202,11 @@ def needs_new_keyframe(
     if len(idx) != n:
         raise ValueError(f"idx_f2k: expected {n} entries, got {len(idx)}")
     vk = as_flat_bool(valid_kf, "valid_kf", n)
+    cells = n if n_cells is None else int(n_cells)
+    if not 1 <= cells <= n:
+        raise ValueError(f"n_cells: expected 1..{n}, got {n_cells}")
     match_frac_k = vk.mean()
-    unique_frac_f = len(np.unique(idx[vm])) / n
+    unique_frac_f = len(np.unique(idx[vm])) / cells
     return bool(min(match_frac_k, unique_frac_f) < cfg.match_frac_thresh)
 
 

@@ -263,9 +263,9 @@ def test_rgbd_prior_config_comes_from_the_run_config() -> None:
     prior = _make_prior("rgbd", seq, False, cfg)
     assert prior.cfg.icp_points == 3000 and prior.cfg.features == "orb"
     assert prior.cfg.n_features == RGBDPriorConfig().n_features
-    assert prior.cfg.desc.kind == "dense"
-    cfg = load_config("rgbd", ["rgbd_prior.descriptors=separable"])
-    assert cfg.rgbd_prior().desc.kind == "separable"
+    assert prior.cfg.desc.kind == "separable"
+    cfg = load_config("rgbd", ["rgbd_prior.descriptors=dense"])
+    assert cfg.rgbd_prior().desc.kind == "dense"
     # Checked when the config is loaded, whichever prior the run uses.
     with pytest.raises(ValueError, match=r"rgbd_prior\.descriptors: expected 'dense' or"):
         load_config(None, ["rgbd_prior.descriptors=sparse"])

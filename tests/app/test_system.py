@@ -6,6 +6,8 @@ share one run. Sizes are chosen to keep the module within ~1 minute on 2 cores.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -189,58 +191,31 @@ def test_ref_run_never_imports_taichi():
     assert res.returncode == 0, res.stderr[-2000:]
 
 
-def test_rgbd_resolution_presets_change_only_documented_keys():
-    """``rgbd_256.yaml`` / ``rgbd_512.yaml`` (docs/system.md "Resolution presets"): rgbd.yaml
-    plus their size, the dilation rounds, the tracking grid or keyframe threshold, and the
-    prior's detector, ICP and descriptor settings; nothing else."""
+def test_rgbd_resolution_presets_are_rgbd_at_their_size():
+    """``rgbd_256.yaml`` / ``rgbd_512.yaml`` (docs/system.md "One configuration, every
+    resolution"): rgbd.yaml with ``dataset.long_side`` set, nothing else, so ``--config rgbd_512``
+    and ``--set dataset.long_side=512`` are the same run."""
     from mslam.config import config_to_dict
 
-    def flat(cfg):
-        d = config_to_dict(cfg)
-        return {
-            f"{s}.{k}": v for s, sec in d.items() if isinstance(sec, dict) for k, v in sec.items()
-        }
-
-    rgbd = flat(load_config("rgbd"))
-    changed = {
-        "rgbd_256": {
-            "dataset.long_side": 256,
-            "matching.dilation_max": 2,
-            "tracking.pixels_per_frame": 5000,
-            "local_opt.pixels_per_edge": 5000,
-            "rgbd_prior.detect_min_width": 256,
-            "rgbd_prior.icp_points": 3000,
-            "rgbd_prior.icp_iters": 6,
-            "rgbd_prior.descriptors": "separable",
-        },
-        "rgbd_512": {
-            "dataset.long_side": 512,
-            "matching.dilation_max": 2,
-            "tracking.match_frac_thresh": 0.333,
-            "rgbd_prior.detect_max_width": 384,
-            "rgbd_prior.icp_points": 3000,
-            "rgbd_prior.icp_iters": 6,
-            "rgbd_prior.descriptors": "separable",
-        },
-    }
-    for name, expected in changed.items():
-        cfg = flat(load_config(name))
-        diff = {k: v for k, v in cfg.items() if rgbd.get(k) != v}
-        assert diff.pop("rgbd_prior.descriptors") == expected.pop("rgbd_prior.descriptors")
-        assert diff == pytest.approx(expected), name
-        assert load_config(name).rgbd_prior().desc.kind == "separable"
-    assert load_config("rgbd").rgbd_prior().desc.kind == "dense"
+    rgbd = config_to_dict(load_config("rgbd"))
+    for size in (256, 512):
+        preset = config_to_dict(load_config(f"rgbd_{size}"))
+        assert preset == config_to_dict(load_config("rgbd", [f"dataset.long_side={size}"]))
+        assert preset["dataset"]["long_side"] == size
+        preset["dataset"]["long_side"] = rgbd["dataset"]["long_side"]
+        assert preset == rgbd
 
 
 def test_rgbd_config_is_base_with_documented_changes():
-    """``configs/rgbd.yaml`` (docs/system.md): base.yaml except fusion mode, keyframe threshold
-    and the working resolution."""
+    """``configs/rgbd.yaml`` (docs/system.md): base.yaml except fusion mode, keyframe threshold,
+    dilation rounds, the work budgets and the working resolution."""
     base, rgbd = load_config(), load_config("rgbd")
     assert rgbd.tracking().match_frac_thresh == 0.5
     assert rgbd.fusion().filtering_mode == "first"
     assert base.fusion().filtering_mode == "weighted_pointmap"
     assert base.tracking().match_frac_thresh == pytest.approx(0.333)
-    assert rgbd.backend() == base.backend() and rgbd.matching() == base.matching()
+    assert rgbd.backend() == base.backend()
+    assert rgbd.matching() == replace(base.matching(), dilation_max=2)
     assert rgbd.use_calib == base.use_calib
     assert rgbd.dataset.long_side == 160 and base.dataset.long_side == 0
     assert rgbd.dataset.subsample == base.dataset.subsample

@@ -215,6 +215,12 @@ def test_needs_new_keyframe_hand_cases() -> None:
     vm = np.zeros(n, bool)
     vm[:3] = True
     assert tracking.needs_new_keyframe(idx, vm, ok, cfg)
+    # 12 matches into 3 of 4 cells (n_cells): 3/4 distinct, though 3/12 of the pixels
+    assert not tracking.needs_new_keyframe(np.repeat([0, 1, 2], 4), ok, ok, cfg, n_cells=4)
+    assert tracking.needs_new_keyframe(np.repeat([0, 1, 2], 4), ok, ok, cfg, n_cells=10)
+    for bad in (0, n + 1):
+        with pytest.raises(ValueError, match="n_cells"):
+            tracking.needs_new_keyframe(idx % 4, ok, ok, cfg, n_cells=bad)
 
 
 def test_bad_inputs() -> None:

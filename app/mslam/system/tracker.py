@@ -162,8 +162,10 @@ class Tracker:
         if plausible is not None and not plausible(T_WC):
             return None
         self._fuse(kf, p, T_CkCf)
+        cell = self.cfg.keyframe_cell_stride((H, W))
+        n_cells = len(range(cell // 2, H, cell)) * len(range(cell // 2, W, cell))
         wants = tracking.needs_new_keyframe(
-            grid_cells(idx_f2k[g], (H, W), stride), valid_match_k[g], valid_kf[on], cfg
+            grid_cells(idx_f2k[g], (H, W), cell), valid_match_k[g], valid_kf[on], cfg, n_cells
         )
         return TrackResult(T_CkCf, T_WC, bool(wants))
 
