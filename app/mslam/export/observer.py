@@ -24,9 +24,9 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any, Protocol
 
-import cv2
 import numpy as np
 
+from mslam.system.outputs import keyframe_colours
 from mslam_ref import sim3
 from mslam_ref.conventions import FloatArray
 
@@ -65,18 +65,6 @@ class RunObserver(Protocol):
 
     def close(self) -> None:
         """The run is over."""
-
-
-def keyframe_colours(system: SlamSystem, k: int) -> np.ndarray:
-    """(H, W, 3) uint8 colours of keyframe ``k`` at its pointmap resolution (as the PLY's)."""
-    kf = system.keyframes[k]
-    H, W = kf.shape
-    img = kf.frame.rgb
-    if img.shape[:2] != (H, W) and hasattr(system.prior, "network_frame"):
-        img = system.prior.network_frame(kf.frame).rgb  # the MASt3R adapter's resize/crop
-    if img.shape[:2] != (H, W):
-        img = cv2.resize(img, (W, H), interpolation=cv2.INTER_AREA)
-    return np.ascontiguousarray(img)
 
 
 def _keyframe_pointmap(system: SlamSystem, k: int) -> tuple[FloatArray, FloatArray]:

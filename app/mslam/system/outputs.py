@@ -42,6 +42,7 @@ from mslam_ref import sim3
 
 __all__ = [
     "C_CONF_THRESHOLD",
+    "keyframe_colours",
     "evaluate_run",
     "plot_trajectory",
     "reconstruction_points",
@@ -52,6 +53,18 @@ __all__ = [
 #: Default of ``output.C_conf_threshold``, the average confidence an exported point must exceed
 #: (upstream viz default, docs/upstream.md §13).
 C_CONF_THRESHOLD = 1.5
+
+
+def keyframe_colours(system: SlamSystem, k: int) -> np.ndarray:
+    """(H, W, 3) uint8 colours of keyframe ``k`` at its pointmap resolution (as the PLY's)."""
+    kf = system.keyframes[k]
+    H, W = kf.shape
+    img = kf.frame.rgb
+    if img.shape[:2] != (H, W) and hasattr(system.prior, "network_frame"):
+        img = system.prior.network_frame(kf.frame).rgb  # the MASt3R adapter's resize/crop
+    if img.shape[:2] != (H, W):
+        img = cv2.resize(img, (W, H), interpolation=cv2.INTER_AREA)
+    return np.ascontiguousarray(img)
 
 
 def reconstruction_points(
@@ -78,12 +91,7 @@ def reconstruction_points(
     X, C = system.keyframes.pointmaps(fusion, system.K)
     xyz, rgb = [], []
     for k, kf in enumerate(system.keyframes):
-        H, W = kf.shape
-        img = kf.frame.rgb
-        if img.shape[:2] != (H, W) and hasattr(system.prior, "network_frame"):
-            img = system.prior.network_frame(kf.frame).rgb  # the MASt3R adapter's resize/crop
-        if img.shape[:2] != (H, W):
-            img = cv2.resize(img, (W, H), interpolation=cv2.INTER_AREA)
+        img = keyframe_colours(system, k)
         keep = (C[k] > c_thresh) & np.all(np.isfinite(X[k]), axis=-1)
         xyz.append(sim3.act(kf.T_WC, X[k][keep]))
         rgb.append(img[keep])
