@@ -50,6 +50,10 @@ def test_map_against_rgbd_folder_and_cloud(capsys, scene) -> None:
         m = res["map"]
         assert m["accuracy"] < MAP_PLY_ATOL and m["completion"] < MAP_PLY_ATOL
         assert m["far"] == 0.0 and m["n_map"] == m["n_truth"]
+    code, out, err = _run(capsys, [*base, "--truth-rgbd", seq, "--map-poses"])
+    assert code == 0, err
+    res = json.loads(out)  # an exact Sim(3) copy: positions and orientations agree
+    assert res["map"]["accuracy"] < MAP_PLY_ATOL and res["map_alignment"]["refine"] == "poses"
     code, out, _ = _run(capsys, [*base, "--truth-rgbd", seq, "--align", "se3"])
     assert code == 0 and json.loads(out)["map"]["accuracy"] > 0.1  # scale 2 left in the map
 
@@ -62,6 +66,8 @@ def test_map_options_bad_input(capsys, scene, tmp_path) -> None:
         (["--map", ply], "--truth-cloud PLY or --truth-rgbd"),
         (["--truth-rgbd", seq], "--map PLY"),
         (["--map-icp"], "--map PLY"),
+        (["--map-poses"], "--map PLY"),
+        (["--map", ply, "--truth-rgbd", seq, "--map-icp", "--map-poses"], "choose one"),
         (["--map", tmp_path / "nope.ply", "--truth-rgbd", seq], "nope.ply: no such file"),
         (["--map", bad_ply, "--truth-rgbd", seq], "not a PLY file"),
         (["--map", ply, "--truth-cloud", bad_ply], "not a PLY file"),

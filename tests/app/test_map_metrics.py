@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from tolerances import MAP_ATOL
+from tolerances import F64_CONDITIONED, MAP_ATOL
 
 from mslam import map_metrics as mm
 from mslam.datasets.synthetic import make_sequence
@@ -164,3 +164,23 @@ def test_bad_input_raises() -> None:
     t = np.arange(20) / 30.0
     with pytest.raises(ValueError, match="refine"):
         mm.evaluate_map(P, t, _line_trajectory(), t, _line_trajectory(), P, refine="nope")
+
+
+def test_pose_alignment_pins_the_rotation_about_a_straight_path() -> None:
+    """Cameras on a nearly straight line: positions leave the roll about the line free, the
+    cameras' axes fix it; an exact Sim(3) copy of the cameras is recovered."""
+    from mslam.map_metrics import pose_alignment
+    from mslam_ref import so3
+
+    rng = np.random.default_rng(3)
+    n = 40
+    P_gt = np.stack([np.linspace(0, 1, n), 1e-3 * rng.normal(size=n), 1e-3 * rng.normal(size=n)], 1)
+    q_gt = so3.exp(0.3 * rng.normal(size=(n, 3)))
+    R_true = so3.to_matrix(so3.exp(np.array([0.9, -0.2, 0.4])))
+    s_true, t_true = 2.5, np.array([0.3, -1.0, 2.0])
+    # the estimate is the truth moved by the inverse similarity
+    P_est = ((P_gt - t_true) @ R_true) / s_true
+    q_est = so3.from_matrix(R_true.T @ so3.to_matrix(q_gt))
+    R, t, s = pose_alignment(P_est, q_est, P_gt, q_gt, s_true)
+    np.testing.assert_allclose(R, R_true, atol=F64_CONDITIONED)
+    np.testing.assert_allclose([s, *t], [s_true, *t_true], atol=F64_CONDITIONED)

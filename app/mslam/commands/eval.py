@@ -79,6 +79,12 @@ def register(subparsers: Any) -> None:
         "depth of every 5th frame in the estimate's time span, voxel-downsampled to 1 cm",
     )
     p.add_argument(
+        "--map-poses",
+        action="store_true",
+        help="align the map by the Sim(3) that fits the cameras' positions and orientations "
+        "(the trajectory alone leaves the rotation about a straight path's axis free)",
+    )
+    p.add_argument(
         "--map-icp",
         action="store_true",
         help="after the trajectory's alignment, register the map onto the truth by rigid ICP "
@@ -122,8 +128,12 @@ def run(args: argparse.Namespace) -> int:
 
     if not (args.max_diff >= 0):
         raise UserError(f"--max-diff: must be >= 0, got {args.max_diff}")
-    if args.map is None and (args.truth_cloud or args.truth_rgbd or args.map_icp):
-        raise UserError("--truth-cloud/--truth-rgbd/--map-icp: give the map with --map PLY")
+    if args.map is None and (args.truth_cloud or args.truth_rgbd or args.map_icp or args.map_poses):
+        raise UserError(
+            "--truth-cloud/--truth-rgbd/--map-icp/--map-poses: give the map with --map PLY"
+        )
+    if args.map_icp and args.map_poses:
+        raise UserError("--map-icp and --map-poses: choose one alignment of the map")
     if args.map is not None and args.truth_cloud is None and args.truth_rgbd is None:
         raise UserError("--map: give the truth with --truth-cloud PLY or --truth-rgbd FOLDER")
     gt_stamps, gt_poses = _read(args.groundtruth)
@@ -199,7 +209,7 @@ def _map(args: argparse.Namespace, trajs: tuple) -> tuple[dict[str, Any], dict[s
     if len(xyz) == 0:
         raise UserError(f"{args.map}: the map has no points")
     truth = _truth(args, trajs[0])
-    refine = "icp" if args.map_icp else "none"
+    refine = "icp" if args.map_icp else ("poses" if args.map_poses else "none")
     try:
         m, _, info = evaluate_map(xyz, *trajs, truth, args.align, args.max_diff, refine)
     except ValueError as exc:
