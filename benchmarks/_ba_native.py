@@ -1,4 +1,4 @@
-"""The native comparison solvers of bench_ba.py: Ceres (C++, built here) and g2o (g2o-python).
+"""The native comparison solvers of bench_ba.py: Ceres (C++, built here) and g2o (g2opy).
 
 * ``ceres``: ``benchmarks/native/ceres_bal.cc`` compiled once against the system's Ceres
   (Debian ``libceres-dev``, with SuiteSparse) into ``build/ceres_bal``; runs a BAL file in a

@@ -18,9 +18,12 @@ Taichi kernels, the reduced system analysed once and refactored per trial); nati
 (``benchmarks/native/ceres_bal.cc``, SPARSE_SCHUR over SuiteSparse, 2 threads, all tolerances 0
 so it runs its 10 iterations); g2o (``g2opy``: BlockSolverSE3 + LinearSolverEigen + Levenberg).
 
+``--section`` names the RESULTS.md section (on a GPU machine: ``--arch cpu --section
+ba-cuda-host`` then ``--arch cuda`` gives that machine's CPU and GPU figures side by side).
+
 Timing: the solvers run in turn (A, B, A, B, ...), ``--repeat`` rounds, and the table reports
 each one's median; other jobs share the 2 cores, so interleaving spreads their load over all
-solvers alike. Writes the ``ba`` section of RESULTS.md (``ba-cuda`` with ``--arch cuda``).
+solvers alike.
 """
 
 from __future__ import annotations
@@ -112,6 +115,7 @@ def main() -> None:
     ap.add_argument("--no-g2o", action="store_true")
     ap.add_argument("--arch", choices=["cpu", "cuda"], default="cpu", help="Taichi backend")
     ap.add_argument("--data", default=str(data_dir()), help="the data folder (Ladybug-49)")
+    ap.add_argument("--section", help="RESULTS.md section (default: ba, or ba-cuda on CUDA)")
     args = ap.parse_args()
     import mslam_fast
     from mslam.kernels import load_kernels
@@ -158,10 +162,11 @@ def write(rows, profiles, args, have_ceres: bool, load: tuple[float, float]) -> 
         + table(["problem", *stages, "numerical / total", "trials"], prof_rows)
     )
     print(body)
-    if args.arch == "cpu":
-        write_section("ba", "Bundle adjustment (Ladybug-49, KITTI-sized)", body)
-    else:
-        write_section("ba-cuda", "Bundle adjustment, fast kernels on CUDA", body)
+    name = args.section or ("ba" if args.arch == "cpu" else "ba-cuda")
+    where = "CPU" if args.arch == "cpu" else "CUDA"
+    write_section(
+        name, f"Bundle adjustment (Ladybug-49, KITTI-sized), fast kernels on {where}", body
+    )
 
 
 if __name__ == "__main__":
