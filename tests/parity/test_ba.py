@@ -43,6 +43,10 @@ def test_parity_linear_system_and_step(fast: str, problem) -> None:
     bf = F.schur.normal_blocks(*rr, w, st)
     for a, b in zip(bf, br):
         _close(a, b, fast, np.abs(b).max())
+    jr = R.schur.jacobi_scale(*br, st)
+    jf = F.schur.jacobi_scale(*br, st)
+    for a, b in zip(jf, jr):
+        _close(a, b, fast, np.abs(b).max())
     lam = 1e-2 * max(np.abs(br[0]).max(), np.abs(br[1]).max())
     sr = R.schur.schur_complement(*br, lam, st)
     sf = F.schur.schur_complement(*br, lam, st)

@@ -180,20 +180,6 @@ def solve_damped(
     return dc, k.schur.back_substitute(Vinv, W, bl, dc, structure)
 
 
-def _jacobi_scale(blocks: tuple[FloatArray, ...], structure: Any):
-    """Scale the blocks in place by ``D = 1 / (1 + sqrt(diag))``: ``H <- D H D``, ``b <- D b``."""
-    U, V, W, bc, bl = blocks
-    Dc = 1.0 / (1.0 + np.sqrt(np.diagonal(U, axis1=1, axis2=2)))
-    Dp = 1.0 / (1.0 + np.sqrt(np.diagonal(V, axis1=1, axis2=2)))
-    W *= Dc[structure.obs_cam][:, :, None]
-    W *= Dp[structure.obs_pt][:, None, :]
-    U *= Dc[:, :, None] * Dc[:, None, :]
-    V *= Dp[:, :, None] * Dp[:, None, :]
-    bc *= Dc
-    bl *= Dp
-    return (U, V, W, bc, bl), (Dc, Dp)
-
-
 def _linear_system(problem: Any, kernels: Any, structure: Any, cams, points):
     r, Jc, Jp = problem.linearize(kernels, cams, points)
     s = problem.information * np.sum(r * r, axis=-1)
@@ -312,7 +298,8 @@ def optimize(
             state.F, blocks = _linear_system(problem, k, st, state.cams, state.points)
             D = None
             if cfg.jacobi_scaling:
-                blocks, D = _jacobi_scale(blocks, st)
+                *scaled, Dc, Dp = k.schur.jacobi_scale(*blocks, st)
+                blocks, D = tuple(scaled), (Dc, Dp)
         if it == 0:
             state.lam = _initial_lambda(problem, blocks, cfg.tau)
         b = np.concatenate([blocks[3].ravel(), blocks[4].ravel()])
