@@ -184,6 +184,13 @@ class SlamConfig:
             raise ValueError(f"descriptors: expected 'dense' or 'separable', got {kind!r}")
         return dataclasses.replace(cfg, desc=dataclasses.replace(cfg.desc, kind=kind))
 
+    def mast3r_prior(self) -> Any:
+        """``mslam.priors.mast3r.Mast3rConfig`` from ``mast3r_prior.*`` (checkpoint, input
+        size, device, cache bound; keys not in the YAML keep the dataclass defaults)."""
+        from mslam.priors.mast3r import Mast3rConfig
+
+        return self._section_as(Mast3rConfig, "mast3r_prior")
+
 
 def _read_yaml(path: Path) -> dict[str, Any]:
     try:
@@ -351,6 +358,11 @@ def load_config(path: str | Path | None = None, overrides: Iterable[str] = ()) -
         cfg.rgbd_prior()
     except ValueError as exc:
         raise ValueError(f"rgbd_prior.{exc}") from None
+    try:  # the network input size is 224 or 512 (the range check admits [224, 512])
+        cfg.mast3r_prior()
+    except ValueError as exc:
+        where = set_by.get("mast3r_prior.size", files[-1])
+        raise ValueError(f"{where}: mast3r_prior.{exc}") from None
     return cfg
 
 

@@ -19,7 +19,8 @@ __all__ = ["RANGES", "check_ranges", "describe"]
 _INF = math.inf
 
 #: dotted key -> (integral, low, high, low_open); ``low_open``: the low bound is excluded.
-#: ``dataset.long_side`` is special: 0 (keep the source size) or in [16, 8192].
+#: ``dataset.long_side`` is special: 0 (keep the source size) or in [16, 8192];
+#: ``mast3r_prior.size`` must also be 224 or 512 (``Mast3rConfig``, checked by ``load_config``).
 RANGES: dict[str, tuple[bool, float, float, bool]] = {
     "dataset.subsample": (True, 1, 10_000, False),
     "dataset.img_downsample": (True, 1, 1, False),
@@ -69,6 +70,8 @@ RANGES: dict[str, tuple[bool, float, float, bool]] = {
     "rgbd_prior.detect_max_width": (True, 0, 8192, False),
     "rgbd_prior.icp_iters": (True, 0, 1000, False),
     "rgbd_prior.icp_points": (True, 100, 10_000_000, False),
+    "mast3r_prior.size": (True, 224, 512, False),
+    "mast3r_prior.cache_bytes": (True, 0, 1_000_000_000_000, False),
 }
 
 

@@ -54,3 +54,4 @@ def test_a_cpu_run_says_so_in_its_summary(tmp_path) -> None:
     s = json.loads((out / "summary.json").read_text())
     assert s["device"] == "cpu"
     assert s["config"]["local_opt"]["use_cuda"] is False
+    assert s["config"]["mast3r_prior"]["device"] == "cpu"  # the network follows the switch

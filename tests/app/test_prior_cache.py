@@ -1,4 +1,10 @@
-"""Issue 13 §9: the priors' per-frame caches are bounded in bytes (configurable)."""
+"""The priors' per-frame caches: one :class:`ByteLRU` bounded in bytes (configurable).
+
+Every prior (synthetic, RGB-D, two-view, MASt3R with a stand-in network) keeps its per-frame
+work in ``prior.cache``: it stays within ``cache_bytes``, a hit gives the same arrays as
+computing afresh (a prior that keeps nothing), and an evicted entry is recomputed to the same
+value.
+"""
 
 from __future__ import annotations
 
@@ -70,18 +76,110 @@ def test_compute_alongside_stores_missing_entries_and_reraises():
     assert "d" not in cache and "e" not in cache and len(threads) == 2  # nothing after a failure
 
 
-def test_synthetic_prior_cache_stays_within_its_bytes():
+def test_put_peek_pop_clear():
+    cache = ByteLRU(max_bytes=2 * 800)
+    cache.put("a", np.zeros(100))
+    cache.put("b", np.zeros(100))
+    assert cache.peek("a") is not None and cache.peek("z", 7) == 7
+    cache.put("c", np.zeros(100))  # peek did not refresh "a": it is evicted
+    assert list(cache.keys()) == ["b", "c"] and cache.bytes == 1600
+    cache.put("b", np.zeros(50))  # replaced, now the most recent
+    assert list(cache.keys()) == ["c", "b"] and cache.bytes == 1200
+    assert cache.pop("c").shape == (100,) and cache.pop("c") is None and cache.bytes == 400
+    cache.clear()
+    assert len(cache) == 0 and cache.bytes == 0
+
+
+def test_nbytes_counts_objects_that_report_nbytes():
+    class Tensor:  # torch tensors report nbytes like NumPy arrays
+        nbytes = 40
+
+    assert nbytes((Tensor(), [np.zeros(2)], {"k": None, "s": "text", "n": 3})) == 56
+
+
+# -- every prior ----------------------------------------------------------------------------
+
+W, H = 96, 72
+
+
+@pytest.fixture(scope="module")
+def seq():
     from mslam.datasets.synthetic import make_sequence
+
+    return make_sequence("loop", n_frames=40, width=W, height=H, seed=0)
+
+
+def _desc(cache_bytes):
     from mslam.priors.descriptors import DescriptorConfig
+
+    return dataclasses.replace(DescriptorConfig(), cache_bytes=cache_bytes)
+
+
+def _synthetic(seq, cache_bytes):
     from mslam.priors.synthetic import SyntheticPrior, SyntheticPriorConfig
 
-    seq = make_sequence("loop", n_frames=8, width=32, height=24)
-    per_frame = 32 * 24 * (24 * 4 + 8)  # float32 descriptors and float64 contrast
-    cfg = SyntheticPriorConfig(
-        desc=dataclasses.replace(DescriptorConfig(), cache_bytes=3 * per_frame)
+    return SyntheticPrior(seq, SyntheticPriorConfig(desc=_desc(cache_bytes)))
+
+
+def _rgbd(seq, cache_bytes):
+    from mslam.priors.rgbd import RGBDPrior, RGBDPriorConfig
+
+    return RGBDPrior(seq, RGBDPriorConfig(n_features=500, desc=_desc(cache_bytes)))
+
+
+def _twoview(seq, cache_bytes):
+    from mslam.priors.twoview import TwoViewPrior, TwoViewPriorConfig
+
+    return TwoViewPrior(cfg=TwoViewPriorConfig(desc=_desc(cache_bytes)))
+
+
+def _mast3r(seq, cache_bytes):
+    from stand_ins import StandInMast3r
+
+    from mslam.priors.mast3r import Mast3rConfig, Mast3rPrior, NumpyBackend
+
+    cfg = Mast3rConfig(size=224, apply_activations=True, cache_bytes=cache_bytes)
+    return Mast3rPrior(StandInMast3r(), cfg, backend=NumpyBackend())
+
+
+PRIORS = {"synthetic": _synthetic, "rgbd": _rgbd, "twoview": _twoview, "mast3r": _mast3r}
+
+
+def _same(a, b) -> bool:
+    return all(
+        np.array_equal(getattr(a, f.name), getattr(b, f.name)) for f in dataclasses.fields(a)
     )
-    prior = SyntheticPrior(seq, cfg)
-    for i in range(1, 8):
-        prior.pair(seq[i - 1], seq[i])
-    assert 0 < prior._desc_cache.bytes <= 3 * per_frame and len(prior._desc_cache) <= 3
-    assert DEFAULT_CACHE_BYTES <= 256 * 2**20
+
+
+def _caches(prior):
+    return [c for c in (prior.cache, getattr(prior, "views", None)) if c is not None]
+
+
+@pytest.mark.parametrize("name", sorted(PRIORS))
+def test_prior_cache_hits_match_fresh_computation(seq, name):
+    prior = PRIORS[name](seq, DEFAULT_CACHE_BYTES)
+    first = prior.pair(seq[2], seq[0])
+    assert len(prior.cache) > 0 and prior.cache.bytes > 0
+    stored = []
+    prior.cache.put = lambda key, value: stored.append(key)  # no miss may store anything
+    again = prior.pair(seq[2], seq[0])
+    assert stored == [] and _same(first, again)
+    fresh = PRIORS[name](seq, 0).pair(seq[2], seq[0])  # keeps nothing: computes everything
+    assert _same(first, fresh)
+
+
+@pytest.mark.parametrize("name", sorted(PRIORS))
+def test_prior_cache_stays_within_its_bytes_and_evicts(seq, name):
+    probe = PRIORS[name](seq, DEFAULT_CACHE_BYTES)
+    first = probe.pair(seq[1], seq[0])
+    bound = probe.cache.bytes  # what one pair's two frames take
+    prior = PRIORS[name](seq, bound)
+    assert _same(prior.pair(seq[1], seq[0]), first)
+    keys = set(prior.cache.keys())
+    for i in range(2, 6):
+        prior.pair(seq[i], seq[i - 1])
+        for cache in _caches(prior):
+            assert 0 < cache.bytes <= bound
+            assert cache.bytes == sum(nbytes(cache.peek(k)) for k in cache.keys())
+    assert not keys & set(prior.cache.keys())  # the first pair's entries were evicted
+    assert _same(prior.pair(seq[1], seq[0]), first)  # ... and recomputed to the same values

@@ -6,11 +6,12 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from stand_ins import StandInMast3r
 from tolerances import F32_UNIT, F64_IDENTITY, F64_ULPS, NOISE_STD, SERIES_NEAR_ZERO
 
 from mslam.datasets.synthetic import make_sequence
 from mslam.priors import DESC_DIM, PairPrediction, Prior, check_prediction
-from mslam.priors.descriptors import patch_descriptors
+from mslam.priors.descriptors import descriptor_Q, patch_descriptors
 from mslam.priors.synthetic import SyntheticPrior, SyntheticPriorConfig
 from mslam_ref import sim3
 from mslam_ref.pointmap import backproject
@@ -135,6 +136,24 @@ def test_patch_descriptors_discriminate(seq) -> None:
     assert near > far + 0.3
     flat = patch_descriptors(np.full((8, 8, 3), 120, np.uint8))[0]
     np.testing.assert_allclose(np.linalg.norm(flat, axis=-1), 1.0, atol=F32_UNIT)  # float32
+
+
+def test_descriptor_Q_is_every_priors_Q(seq) -> None:
+    """One formula for Q: the synthetic, RGB-D and two-view priors return exactly
+    ``descriptor_Q`` of the patch contrast (bit for bit) where they do not lower it."""
+    from mslam.priors.rgbd import RGBDPrior
+    from mslam.priors.twoview import TwoViewPrior
+
+    _, contrast = patch_descriptors(seq[3].rgb)
+    Q = descriptor_Q(contrast, 6.0, 0.04)
+    np.testing.assert_array_equal(Q, 1.0 + 6.0 * np.tanh(contrast / 0.04))
+    assert Q.min() >= 1.0 and Q.max() <= 7.0
+    order = np.argsort(contrast, axis=None)
+    assert np.all(np.diff(Q.reshape(-1)[order]) >= 0)  # monotone in the contrast
+    np.testing.assert_array_equal(RGBDPrior(seq)._desc(seq[3])[1], Q)
+    np.testing.assert_array_equal(TwoViewPrior()._desc(seq[3])[1], Q)
+    clean = SyntheticPrior(seq, SyntheticPriorConfig(outlier_frac=0.0))
+    np.testing.assert_array_equal(clean.pair(seq[3], seq[4]).Q_ii, Q)
 
 
 def test_check_prediction_rejects_bad_outputs(seq) -> None:
@@ -381,40 +400,11 @@ def test_mast3r_activations() -> None:
     np.testing.assert_allclose(np.linalg.norm(d, axis=-1), 1.0, rtol=F64_ULPS)
 
 
-class _StandInMast3r:
-    """Mimics AsymmetricMASt3R's interface on NumPy arrays, returning raw head outputs."""
-
-    def __init__(self) -> None:
-        self.calls: list[str] = []
-
-    def _encode_image(self, img, true_shape):
-        self.calls.append("encode")
-        H, W = (int(x) for x in np.asarray(true_shape)[0])
-        assert img.shape == (1, 3, H, W) and -1.0 <= img.min() and img.max() <= 1.0
-        feat = img[:, :, ::16, ::16].reshape(1, 3, -1).transpose(0, 2, 1)  # (1, HW/256, 3)
-        return feat, np.zeros((1, feat.shape[1], 2)), None
-
-    def _decoder(self, f1, p1, f2, p2):
-        self.calls.append("decode")
-        return [f1, f1 + f2], [f2, f1 - f2]
-
-    def _downstream_head(self, head, toks, shape):
-        H, W = (int(x) for x in np.asarray(shape)[0])
-        t = toks[-1][0].reshape(H // 16, W // 16, 3).repeat(16, 0).repeat(16, 1)
-        g = np.linspace(-1, 1, H * W).reshape(H, W, 1)
-        return {
-            "pts3d": (t + np.array([0, 0, 1.0 + head]))[None],
-            "conf": (t[..., 0] + head)[None],
-            "desc": np.concatenate([t, g + t[..., :1]] * 6, axis=-1)[None],
-            "desc_conf": t[..., 1][None],
-        }
-
-
 def test_mast3r_adapter_with_stand_in() -> None:
     from mslam.priors.mast3r import Mast3rConfig, Mast3rPrior, NumpyBackend
 
     seq = make_sequence("loop", n_frames=4, width=W, height=H, seed=0)
-    net = _StandInMast3r()
+    net = StandInMast3r()
     prior = Mast3rPrior(net, Mast3rConfig(apply_activations=True), backend=NumpyBackend())
     pred = prior.pair(seq[0], seq[1])
     check_prediction(pred)
@@ -505,5 +495,7 @@ def test_mast3r_adapter_with_stand_in_torch_module() -> None:
     again = prior.pair(seq[0], seq[1])
     np.testing.assert_array_equal(again.X_ji, pred.X_ji)  # deterministic
     assert net.encoded == 2  # encoder outputs cached per frame
+    feats = [t for enc in (prior._encode(seq[0]), prior._encode(seq[1])) for t in enc]
+    assert prior.cache.bytes == sum(t.nbytes for t in feats) > 0  # tensors count their bytes
     X, C = prior.mono(seq[2])
     assert X.shape == (384, 512, 3) and np.all(C >= 1.0)

@@ -120,10 +120,10 @@ def test_pair_is_the_same_with_work_done_alongside(monkeypatch) -> None:
 
     def in_line(jobs):  # compute_alongside, run in the caller's thread at once
         for key, fn in jobs.items():
-            inline._cache.get(key, fn)
+            inline.cache.get(key, fn)
         return lambda *keys: None
 
-    monkeypatch.setattr(inline._cache, "compute_alongside", in_line)
+    monkeypatch.setattr(inline.cache, "compute_alongside", in_line)
     for i, j in ((10, 13), (13, 16), (10, 16)):
         a, b = threaded.pair(seq[i], seq[j]), inline.pair(seq[i], seq[j])
         assert threaded.last_inliers == inline.last_inliers >= 15

@@ -138,7 +138,11 @@ def run(args: argparse.Namespace) -> int:
     from mslam.device import use_device
 
     use_device(args.device, args.kernels, args.precision)  # before any work: no fallback
-    overrides = [*args.overrides, f"local_opt.use_cuda={str(args.device == 'cuda').lower()}"]
+    overrides = [  # one switch: the kernels' arch and the network's torch device
+        *args.overrides,
+        f"local_opt.use_cuda={str(args.device == 'cuda').lower()}",
+        f"mast3r_prior.device={args.device}",
+    ]
     cfg = load_config(args.config, overrides)
     source = open_source(args.source, cfg, args.calib, args.prior, args.max_frames)
     if args.config is None and source.prior_name in ("rgbd", "twoview"):

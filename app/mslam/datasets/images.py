@@ -1,9 +1,10 @@
-"""Image preparation that needs OpenCV — network-resolution resize/crop and undistortion.
+"""Image preparation — network-resolution resize/crop (Pillow) and undistortion (OpenCV).
 
 The maths of these steps (intrinsics after a resize and crop, the pixel convention) is in
 ``mslam_ref.pointmap``; this module does the image operations themselves, as upstream's
 data loader does (``mast3r_slam/mast3r_utils.py::resize_img``,
-``mast3r_slam/dataloader.py::Intrinsics.from_calib``).
+``mast3r_slam/dataloader.py::Intrinsics.from_calib``). The resize uses Pillow's filters as
+upstream does, so the network input is bit for bit upstream's.
 
 Public functions, in reading order:
     resize_img, optimal_intrinsics, undistort_maps, undistort
@@ -25,6 +26,14 @@ def _resized_size(W1: int, H1: int, long_edge: int) -> tuple[int, int]:
     return round(W1 * long_edge / S), round(H1 * long_edge / S)
 
 
+def _pil_resize(img: np.ndarray, W: int, H: int, shrink: bool) -> np.ndarray:
+    """(H, W, 3) uint8: Pillow LANCZOS (``shrink``) or BICUBIC resize of an RGB image."""
+    from PIL import Image
+
+    resample = Image.Resampling.LANCZOS if shrink else Image.Resampling.BICUBIC
+    return np.asarray(Image.fromarray(np.ascontiguousarray(img)).resize((W, H), resample))
+
+
 def resize_img(
     img: np.ndarray, size: int = 512, square_ok: bool = False
 ) -> tuple[np.ndarray, tuple[float, float, float, float]]:
@@ -34,9 +43,10 @@ def resize_img(
     side becomes 512 (``new = round(x · 512 / max(W1, H1))``), then a centre crop with
     ``cx = W//2, cy = H//2, halfw = ((2 cx)//16)·8, halfh = ((2 cy)//16)·8`` (``halfh = 3 halfw/4``
     for a square image unless ``square_ok``) makes both sides multiples of 16. For ``size = 224``
-    the short side becomes 224 and a square centre crop follows. Upstream uses PIL LANCZOS
-    (shrinking) / BICUBIC (enlarging); this uses cv2 INTER_LANCZOS4 / INTER_CUBIC, which differ
-    by a few grey levels.
+    the short side becomes 224 and a square centre crop follows. The resize is Pillow's
+    ``Image.resize`` of the uint8 RGB image with LANCZOS when the long side shrinks and
+    BICUBIC otherwise, as upstream's, so the output is bit for bit upstream's (OpenCV's
+    INTER_LANCZOS4 / INTER_CUBIC differ from Pillow's filters by a few grey levels).
 
     Args:
         img: (H1, W1, 3) uint8 image.
@@ -60,8 +70,7 @@ def resize_img(
     else:
         long_edge = size
     W, H = _resized_size(W1, H1, long_edge)
-    interp = cv2.INTER_LANCZOS4 if max(W1, H1) > long_edge else cv2.INTER_CUBIC
-    res = cv2.resize(img, (W, H), interpolation=interp)
+    res = _pil_resize(img, W, H, shrink=max(W1, H1) > long_edge)
     cx, cy = W // 2, H // 2
     if size == 224:
         half = min(cx, cy)

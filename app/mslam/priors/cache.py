@@ -1,9 +1,12 @@
 """A least-recently-used cache bounded in bytes, for per-frame results of the priors.
 
-The priors cache per-frame work (patch descriptors, features) because a frame is paired with
-several keyframes. An entry's size is the sum of the ``nbytes`` of the NumPy arrays it holds
-(descending into tuples, lists and dicts), so the bound holds at every resolution: a count
-bound (the earlier 64 entries) grows with H·W·192 bytes per frame (943 MB at 320x240).
+The priors cache per-frame work (patch descriptors, features, flows, encoder features)
+because a frame is paired with several keyframes. Every prior (synthetic, RGB-D, two-view,
+MASt3R) keeps it in a :class:`ByteLRU` bounded by its config's ``cache_bytes``. An entry's
+size is the sum of the ``nbytes`` of the arrays it holds (NumPy arrays, and tensors that
+report ``nbytes``, descending into tuples, lists and dicts), so the bound holds at every
+resolution, which a bound on the number of entries does not: patch descriptors alone take
+H·W·104 bytes per frame (8 MB at 320x240, 20 MB at 512x384).
 
 :meth:`ByteLRU.compute_alongside` computes missing entries on a worker thread while the caller
 does other work (the RGB-D prior finds a frame's keypoints, in OpenCV, which releases the GIL,
@@ -29,14 +32,18 @@ DEFAULT_CACHE_BYTES = 128 * 2**20
 
 
 def nbytes(value: Any) -> int:
-    """Bytes held by the NumPy arrays in ``value`` (recursing into containers)."""
+    """Bytes held by the arrays in ``value`` (recursing into containers): NumPy arrays and
+    any other array type with an integer ``nbytes`` (torch tensors); 0 for everything else."""
     if isinstance(value, np.ndarray):
         return int(value.nbytes)
+    if isinstance(value, str | bytes | int | float | bool | np.generic) or value is None:
+        return 0
     if isinstance(value, tuple | list):
         return sum(nbytes(v) for v in value)
     if isinstance(value, dict):
         return sum(nbytes(v) for v in value.values())
-    return 0
+    size = getattr(value, "nbytes", None)
+    return int(size) if isinstance(size, int | np.integer) and not isinstance(size, bool) else 0
 
 
 class ByteLRU:
@@ -61,12 +68,23 @@ class ByteLRU:
     def __contains__(self, key: Hashable) -> bool:
         return key in self._items
 
+    def keys(self) -> list[Hashable]:
+        """The cached keys, least recently used first."""
+        return list(self._items)
+
     def get(self, key: Hashable, compute: Callable[[], Any]) -> Any:
         """The value of ``key``, computing and storing it on a miss."""
         if key in self._items:
             self._items.move_to_end(key)
             return self._items[key][0]
         value = compute()
+        self.put(key, value)
+        return value
+
+    def put(self, key: Hashable, value: Any) -> None:
+        """Store ``value`` under ``key`` (replacing an earlier value) as the most recent entry,
+        then evict least recently used entries down to the bound."""
+        self.pop(key)
         size = nbytes(value)
         if size <= self.max_bytes:
             self._items[key] = (value, size)
@@ -74,7 +92,24 @@ class ByteLRU:
             while self.bytes > self.max_bytes:
                 _, (_, old) = self._items.popitem(last=False)
                 self.bytes -= old
-        return value
+
+    def peek(self, key: Hashable, default: Any = None) -> Any:
+        """The value of ``key`` (``default`` on a miss) without making it the most recent."""
+        item = self._items.get(key)
+        return default if item is None else item[0]
+
+    def pop(self, key: Hashable, default: Any = None) -> Any:
+        """Remove ``key``; its value, or ``default`` when it is not cached."""
+        item = self._items.pop(key, None)
+        if item is None:
+            return default
+        self.bytes -= item[1]
+        return item[0]
+
+    def clear(self) -> None:
+        """Remove every entry."""
+        self._items.clear()
+        self.bytes = 0
 
     def compute_alongside(self, jobs: dict[Hashable, Callable[[], Any]]) -> Callable[..., None]:
         """Start computing the jobs whose keys are not cached, in order, on a worker thread.

@@ -9,7 +9,9 @@ patch taps are spaced by ``step``), and discriminates between textured locations
 ``D(u, v) = normalize(P^T z(u, v))`` with ``z`` the 3·p² samples of the blurred image on a p x p
 grid of spacing ``step`` around (u, v), minus their mean and divided by their standard deviation
 (plus ``eps``), and ``P`` a fixed (3p², F) random matrix. ``contrast(u, v)`` is that standard
-deviation; the priors turn it into the descriptor confidence Q.
+deviation; :func:`descriptor_Q` turns it into the descriptor confidence
+``Q = 1 + q_gain · tanh(contrast / q_contrast)`` (the network's Q of paper §3.1: at least 1,
+saturating at ``1 + q_gain`` on textured patches), one formula for every prior.
 
 Two kinds of ``P`` (``DescriptorConfig.kind``):
 
@@ -23,7 +25,7 @@ Two kinds of ``P`` (``DescriptorConfig.kind``):
   smooth and discriminative; the matches they refine are measured in docs/system.md.
 
 Public names, in reading order:
-    DescriptorConfig, patch_descriptors
+    DescriptorConfig, patch_descriptors, descriptor_Q
 """
 
 from __future__ import annotations
@@ -36,7 +38,7 @@ from numpy.lib.stride_tricks import sliding_window_view
 
 from mslam_ref.conventions import FloatArray
 
-__all__ = ["DescriptorConfig", "patch_descriptors"]
+__all__ = ["DescriptorConfig", "descriptor_Q", "patch_descriptors"]
 
 #: Image rows per block of the patch matrix (bounds its memory at H-independent size).
 _ROWS = 16
@@ -135,6 +137,24 @@ def patch_descriptors(
     else:
         D = _separable(img, offset, cfg, border)
     return D.reshape(H, W, cfg.dim), contrast
+
+
+def descriptor_Q(contrast: FloatArray, q_gain: float, q_contrast: float) -> FloatArray:
+    """Descriptor confidence Q of the patch descriptors, from their contrast.
+
+    Paper §3.1 (the network's Q; tracking and the backend keep matches with ``Q > Q_conf``).
+    ``Q = 1 + q_gain · tanh(contrast / q_contrast)``: flat patches get ``Q = 1``, textured ones
+    approach ``1 + q_gain``, monotone in the contrast.
+
+    Args:
+        contrast: (...) patch standard deviation from :func:`patch_descriptors`.
+        q_gain: ``Q - 1`` of a fully textured patch (>= 0).
+        q_contrast: contrast scale of the saturation (> 0).
+
+    Returns:
+        (...) float64 Q, >= 1.
+    """
+    return 1.0 + q_gain * np.tanh(contrast / q_contrast)
 
 
 def _dense(

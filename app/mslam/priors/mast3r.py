@@ -2,17 +2,28 @@
 
 This project cannot ship MASt3R's 2.7 GB checkpoint; users who have it (and ``torch`` plus the
 ``naver/mast3r`` code on their path) get the genuine prior here. The adapter reproduces
-upstream's calls (docs/upstream.md §2): upstream's resize/crop to 512 and [-1, 1] normalisation
-(``pointmap.resize_img``, ``pointmap.network_input``), one encoder call per frame (cached like
-upstream's ``frame.feat``), ``_decoder(feat1, pos1, feat2, pos2)`` and
-``_downstream_head(1|2, tokens, true_shape)``. Outputs are at the network resolution (e.g.
-512 x 384 for 640 x 480 input); ``network_frame`` gives the matching resized frame and
-``network_intrinsics`` the matching ``K``.
+upstream's calls (docs/upstream.md §2):
+
+* the network input is upstream's: Pillow resize (LANCZOS shrinking, BICUBIC enlarging) and
+  centre crop to 512 or 224 (``mslam.datasets.images.resize_img``), then ``[-1, 1]``
+  normalisation in float32 (``mslam_ref.pointmap.network_input``), bit for bit;
+* one encoder call per frame. Like upstream, which stores ``feat`` with each keyframe, the
+  features of a frame marked with :meth:`Mast3rPrior.keep` are held until
+  :meth:`Mast3rPrior.forget`; once the caller marks keyframes, the features of another frame
+  last until the next frame that is not held is encoded (the current frame's only). A caller
+  that marks none gets a byte-bounded cache (``cache``, ``Mast3rConfig.cache_bytes``);
+* ``_decoder(feat1, pos1, feat2, pos2)`` and ``_downstream_head(1|2, tokens, true_shape)``.
+
+Outputs are at the network resolution (e.g. 512 x 384 for 640 x 480 input); ``network_frame``
+gives the matching resized frame and ``network_intrinsics`` the matching ``K``. Loading the
+network and its one-line errors are in :mod:`mslam.priors.mast3r_load`; the settings
+(checkpoint, input size, device, cache) come from the ``mast3r_prior`` config section, the
+checkpoint also from ``$MSLAM_MAST3R_CHECKPOINT``.
 
 The network is any object with upstream's interface, so tests use a stand-in; tensor handling
 goes through a small *backend* (``TorchBackend`` by default, importing torch lazily). The
-output activations (docs/upstream.md §2.1) are also given in NumPy form for stand-ins that return raw
-head outputs (``Mast3rConfig.apply_activations``):
+output activations (docs/upstream.md §2.1) are also given in NumPy form for stand-ins that
+return raw head outputs (``Mast3rConfig.apply_activations``):
 
 * ``pts3d = v / ‖v‖ · (exp(‖v‖) − 1)``, ``conf = 1 + exp(x)``, ``desc = d / ‖d‖``,
   ``desc_conf = exp(x)``.
@@ -26,7 +37,8 @@ Public names, in reading order:
 from __future__ import annotations
 
 import contextlib
-from collections import OrderedDict
+import os
+import threading
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -36,6 +48,8 @@ import numpy as np
 from mslam.datasets.frame import Frame
 from mslam.datasets.images import resize_img
 from mslam.priors.base import PairPrediction
+from mslam.priors.cache import DEFAULT_CACHE_BYTES, ByteLRU
+from mslam.priors.mast3r_load import INSTALL_HINT, Mast3rUnavailable, import_torch, load_mast3r
 from mslam_ref.conventions import FloatArray
 from mslam_ref.pointmap import intrinsics_after_resize, network_input
 
@@ -54,12 +68,6 @@ __all__ = [
     "postprocess",
     "pts3d_activation",
 ]
-
-_INSTALL_HINT = (
-    "the MASt3R prior needs torch (pip install -e '.[mast3r]', CPU build pinned), the "
-    "naver/mast3r code on PYTHONPATH, and a checkpoint such as "
-    "MASt3R_ViTLarge_BaseDecoder_512_catmlpdpt_metric.pth"
-)
 
 
 def pts3d_activation(v: FloatArray) -> FloatArray:
@@ -101,38 +109,36 @@ def postprocess(raw: dict[str, Any]) -> dict[str, FloatArray]:
 
 @dataclass(frozen=True)
 class Mast3rConfig:
-    """Adapter settings.
+    """Adapter settings (the ``mast3r_prior`` config section, ``SlamConfig.mast3r_prior``).
 
     Attributes:
+        checkpoint: path of the checkpoint; "" takes ``$MSLAM_MAST3R_CHECKPOINT``.
         size: network resolution, 512 (long side) or 224 (short side + square crop).
         device: torch device string.
         apply_activations: the head returns raw values (True) or activated ones (False, as
             upstream's ``_downstream_head``).
+        cache_bytes: bound of the encoder features of frames not marked with ``keep``
+            (``mslam.priors.cache``).
     """
 
+    checkpoint: str = ""
     size: int = 512
     device: str = "cpu"
     apply_activations: bool = False
+    cache_bytes: int = DEFAULT_CACHE_BYTES
 
-
-class Mast3rUnavailable(ImportError, ValueError):
-    """torch, the mast3r package or the checkpoint is missing (a ValueError too, so the CLI
-    prints it as one line)."""
-
-
-def _import_torch():
-    try:
-        import torch
-    except ImportError:
-        raise Mast3rUnavailable(f"torch is not installed: {_INSTALL_HINT}") from None
-    return torch
+    def __post_init__(self) -> None:
+        if self.size not in (224, 512):
+            raise ValueError(f"size: must be 224 or 512, got {self.size}")
+        if isinstance(self.cache_bytes, bool) or self.cache_bytes < 0:
+            raise ValueError(f"cache_bytes: must be an int >= 0, got {self.cache_bytes!r}")
 
 
 class TorchBackend:
     """Tensor handling with torch (imported on first use)."""
 
     def __init__(self, device: str = "cpu") -> None:
-        self.torch = _import_torch()
+        self.torch = import_torch()
         self.device = device
 
     def to_tensor(self, a: np.ndarray):
@@ -164,42 +170,25 @@ class NumpyBackend:
         return contextlib.nullcontext()
 
 
-def load_mast3r(checkpoint: str | Path, device: str = "cpu"):
-    """Load ``AsymmetricMASt3R`` from a user-given checkpoint (upstream: mast3r_utils::load_mast3r).
-
-    Raises:
-        FileNotFoundError: the checkpoint is missing. Mast3rUnavailable (an ImportError and a
-        ValueError): torch or mast3r missing, with installation hints.
-    """
-    path = Path(checkpoint)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: MASt3R checkpoint not found; {_INSTALL_HINT}")
-    _import_torch()
-    try:
-        from mast3r.model import AsymmetricMASt3R
-    except ImportError:
-        raise Mast3rUnavailable(f"the mast3r package is not importable: {_INSTALL_HINT}") from None
-    return AsymmetricMASt3R.from_pretrained(str(path)).to(device).eval()
-
-
 #: Environment variable naming the checkpoint for :func:`load_prior`.
 CHECKPOINT_ENV = "MSLAM_MAST3R_CHECKPOINT"
 
 
 def load_prior(checkpoint: str | Path | None = None, cfg: Mast3rConfig | None = None):
-    """A :class:`Mast3rPrior` on the user's checkpoint (argument, else ``$MSLAM_MAST3R_CHECKPOINT``).
+    """A :class:`Mast3rPrior` on the user's checkpoint: the argument, else ``cfg.checkpoint``,
+    else ``$MSLAM_MAST3R_CHECKPOINT``.
 
     Raises:
-        FileNotFoundError: no checkpoint given or found. Mast3rUnavailable: torch or mast3r
-        missing.
+        FileNotFoundError: no checkpoint given or found. Mast3rUnavailable: torch, mast3r or
+        one of its modules missing. ValueError: not a MASt3R checkpoint
+        (:func:`mslam.priors.mast3r_load.load_mast3r`).
     """
-    import os
-
     cfg = cfg or Mast3rConfig()
-    checkpoint = checkpoint or os.environ.get(CHECKPOINT_ENV)
+    checkpoint = checkpoint or cfg.checkpoint or os.environ.get(CHECKPOINT_ENV)
     if not checkpoint:
         raise FileNotFoundError(
-            f"no MASt3R checkpoint: set {CHECKPOINT_ENV}=/path/to/checkpoint.pth; {_INSTALL_HINT}"
+            f"no MASt3R checkpoint: set mast3r_prior.checkpoint (--set "
+            f"mast3r_prior.checkpoint=PATH) or {CHECKPOINT_ENV}=PATH; {INSTALL_HINT}"
         )
     return Mast3rPrior(load_mast3r(checkpoint, cfg.device), cfg)
 
@@ -217,12 +206,16 @@ class Mast3rPrior:
         for name in ("_encode_image", "_decoder", "_downstream_head"):
             if not callable(getattr(model, name, None)):
                 raise ValueError(f"model: missing method {name} of the MASt3R interface")
-        if cfg.size not in (224, 512):
-            raise ValueError(f"size: must be 224 or 512, got {cfg.size}")
         self.model = model
         self.cfg = cfg
         self.backend = backend if backend is not None else TorchBackend(cfg.device)
-        self._feat: OrderedDict[tuple, tuple] = OrderedDict()
+        #: Encoder features ``(feat, pos, true_shape)`` of frames not marked with ``keep``,
+        #: bounded in bytes (only the current frame's once the caller marks keyframes).
+        self.cache = ByteLRU(cfg.cache_bytes)
+        #: Frame index -> (content key, features or None until first encoded) of keyframes.
+        self.kept: dict[int, tuple[tuple, Any]] = {}
+        self._marks_keyframes = False
+        self._lock = threading.Lock()  # keep/forget may come from another thread than pair
 
     def network_frame(self, frame: Frame) -> Frame:
         """The frame resized and cropped to the network resolution (depth dropped)."""
@@ -234,19 +227,59 @@ class Mast3rPrior:
         _, tr = resize_img(frame.rgb, self.cfg.size)
         return intrinsics_after_resize(K, tr)
 
+    @staticmethod
+    def _key(frame: Frame) -> tuple:
+        return (int(frame.index), frame.rgb.shape, hash(frame.rgb.tobytes()))
+
+    def keep(self, frame: Frame) -> None:
+        """Hold ``frame``'s encoder features while it is a keyframe (until :meth:`forget`).
+
+        Upstream keeps ``feat`` with every keyframe in its keyframe buffer. Call it when the
+        frame becomes a keyframe; its features move out of ``cache`` (or are encoded at its
+        next use). From the first call on, the features of a frame that is not held last only
+        until the next such frame is encoded, as upstream's per-frame ``feat``.
+        """
+        key = self._key(frame)
+        with self._lock:
+            self._marks_keyframes = True
+            held = self.kept.get(key[0])
+            if held is None or held[0] != key:
+                self.kept[key[0]] = (key, self.cache.pop(key))
+
+    def forget(self, frame_index: int) -> None:
+        """Drop the features held for frame ``frame_index`` (it is no longer a keyframe)."""
+        with self._lock:
+            self.kept.pop(int(frame_index), None)
+
     def _encode(self, frame: Frame):
-        key = (int(frame.index), frame.rgb.shape, hash(frame.rgb.tobytes()))
-        if key not in self._feat:
-            img, _ = resize_img(frame.rgb, self.cfg.size)
-            H, W = img.shape[:2]
-            b = self.backend
-            shape = b.to_tensor(np.array([[H, W]], dtype=np.int32))
-            with b.no_grad():
-                feat, pos, _ = self.model._encode_image(b.to_tensor(network_input(img)), shape)
-            self._feat[key] = (feat, pos, shape)
-            if len(self._feat) > 32:
-                self._feat.popitem(last=False)
-        return self._feat[key]
+        """``(feat, pos, true_shape)`` of a frame, encoded once while it is held or cached."""
+        key = self._key(frame)
+        with self._lock:
+            held = self.kept.get(key[0])
+            if held is not None and held[0] == key and held[1] is not None:
+                return held[1]
+            if key in self.cache:
+                return self.cache.get(key, lambda: None)
+        enc = self._encoder(frame)
+        with self._lock:
+            held = self.kept.get(key[0])
+            if held is not None and held[0] == key:
+                self.kept[key[0]] = (key, enc)
+            else:
+                if self._marks_keyframes:
+                    self.cache.clear()  # the previous frame's features: not a keyframe
+                self.cache.put(key, enc)
+        return enc
+
+    def _encoder(self, frame: Frame):
+        """``(feat, pos, true_shape)`` of upstream's ``_encode_image`` on the network input."""
+        img, _ = resize_img(frame.rgb, self.cfg.size)
+        H, W = img.shape[:2]
+        b = self.backend
+        shape = b.to_tensor(np.array([[H, W]], dtype=np.int32))
+        with b.no_grad():
+            feat, pos, _ = self.model._encode_image(b.to_tensor(network_input(img)), shape)
+        return feat, pos, shape
 
     def _decode(self, enc1, enc2):
         """Upstream mast3r_utils.py::decoder: both heads on float tokens."""

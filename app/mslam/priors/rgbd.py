@@ -44,7 +44,8 @@ import numpy as np
 from mslam.datasets.frame import Frame
 from mslam.priors import rgbd_pose as pose
 from mslam.priors.base import PairPrediction
-from mslam.priors.descriptors import DescriptorConfig, patch_descriptors
+from mslam.priors.cache import ByteLRU
+from mslam.priors.descriptors import DescriptorConfig, descriptor_Q, patch_descriptors
 from mslam.priors.keypoints import detect, ratio_matches
 from mslam_ref import sim3, so3
 from mslam_ref.conventions import FloatArray
@@ -196,9 +197,8 @@ class RGBDPrior:
         #: Wall seconds per sub-step (``features``, ``ratio``, ``pnp``, ``icp``, ``depth``,
         #: ``descriptors``, ``consistency``), for the profiles in benchmarks/.
         self.seconds: defaultdict[str, float] = defaultdict(float)
-        from mslam.priors.cache import ByteLRU
-
-        self._cache = ByteLRU(cfg.desc.cache_bytes)  # bounded in bytes, not entries
+        #: Per-frame results (features, depth views, descriptors), bounded in bytes.
+        self.cache = ByteLRU(cfg.desc.cache_bytes)
         self._rays_by_shape: dict[tuple[int, int], FloatArray] = {}
         self._hashes: dict[int, int] | None = None  # image content hashes during a pair call
 
@@ -218,7 +218,7 @@ class RGBDPrior:
 
     def _cached(self, kind: str, frame: Frame, fn):
         """Per-frame results (features, descriptors) keyed by index and image content."""
-        return self._cache.get(self._key(kind, frame), lambda: fn(frame))
+        return self.cache.get(self._key(kind, frame), lambda: fn(frame))
 
     def K_for(self, frame: Frame) -> FloatArray:
         """Intrinsics at the frame's resolution."""
@@ -329,13 +329,13 @@ class RGBDPrior:
         return self._rays_by_shape[frame.shape]
 
     def _desc(self, frame: Frame) -> tuple[FloatArray, FloatArray]:
-        """``D`` (H, W, F) and ``Q = 1 + q_gain tanh(contrast / q_contrast)`` (H, W)."""
+        """``D`` (H, W, F) and ``Q`` (H, W) (``descriptors.descriptor_Q``)."""
         return self._cached("desc", frame, self._patch_descriptors)
 
     def _patch_descriptors(self, frame: Frame) -> tuple[FloatArray, FloatArray]:
         with self._timed("descriptors"):
             D, contrast = patch_descriptors(frame.rgb, self.cfg.desc)
-            Q = 1.0 + self.cfg.q_gain * np.tanh(contrast / self.cfg.q_contrast)
+            Q = descriptor_Q(contrast, self.cfg.q_gain, self.cfg.q_contrast)
             for a in (D, Q):
                 a.setflags(write=False)  # cached and shared by every pair of this frame
             return D, Q
@@ -367,7 +367,7 @@ class RGBDPrior:
         jobs = {k: (lambda f=f: self._features(f)) for k, f in zip(keys, frames, strict=True)}
         for f in frames:
             jobs[self._key("desc", f)] = lambda f=f: self._patch_descriptors(f)
-        join = self._cache.compute_alongside(jobs)
+        join = self.cache.compute_alongside(jobs)
         X_ii, C_ii, valid_i = self._view(frame_i)
         X_jj, C_jj, _ = self._view(frame_j)
         join(*keys)

@@ -140,7 +140,7 @@ def icp_sample(valid: np.ndarray, n_points: int) -> np.ndarray:
     ``floor(sqrt(n_valid / n_points))`` (all of them when that is 1).
 
     ICP is a 6-parameter fit: a few thousand well-spread points determine it as well as every
-    pixel, and the cost no longer grows with the resolution (at 512x384 the full set made
+    pixel, and the cost does not grow with the resolution (at 512x384 every pixel would make
     ICP the prior's largest cost). Returns an (H, W) bool mask.
     """
     stride = max(1, int(np.sqrt(valid.sum() / max(n_points, 1))))

@@ -39,7 +39,8 @@ import numpy as np
 
 from mslam.datasets.frame import Frame
 from mslam.priors.base import PairPrediction
-from mslam.priors.descriptors import DescriptorConfig, patch_descriptors
+from mslam.priors.cache import ByteLRU
+from mslam.priors.descriptors import DescriptorConfig, descriptor_Q, patch_descriptors
 from mslam_ref import sim3
 from mslam_ref.conventions import FloatArray
 from mslam_ref.pointmap import backproject, project, scale_intrinsics
@@ -144,15 +145,14 @@ class SyntheticPrior:
         self.K = np.asarray(sequence.K, dtype=np.float64)
         self.size = (getattr(sequence, "width", None), getattr(sequence, "height", None))
         self.cfg = cfg
-        from mslam.priors.cache import ByteLRU
-
-        self._desc_cache = ByteLRU(cfg.desc.cache_bytes)  # bounded in bytes, not entries
+        #: Patch descriptors per frame, bounded in bytes.
+        self.cache = ByteLRU(cfg.desc.cache_bytes)
 
     # -- helpers -----------------------------------------------------------------------------
     def _descriptors(self, frame: Frame) -> tuple[FloatArray, FloatArray]:
         """Patch descriptors of a frame, cached (they depend on the image only)."""
         key = (int(frame.index), frame.rgb.shape, hash(np.ascontiguousarray(frame.rgb).tobytes()))
-        return self._desc_cache.get(key, lambda: patch_descriptors(frame.rgb, self.cfg.desc))
+        return self.cache.get(key, lambda: patch_descriptors(frame.rgb, self.cfg.desc))
 
     def _K_for(self, frame: Frame) -> FloatArray:
         H, W = frame.shape
@@ -190,7 +190,7 @@ class SyntheticPrior:
         if cfg.desc_noise > 0:
             D = D + cfg.desc_noise * rng.standard_normal(D.shape)
             D /= np.linalg.norm(D, axis=-1, keepdims=True)
-        Q = 1.0 + cfg.q_gain * np.tanh(contrast / cfg.q_contrast)
+        Q = descriptor_Q(contrast, cfg.q_gain, cfg.q_contrast)
         Q = np.where(out, 0.3 * Q, Q)
         return X, C, D, Q, out
 

@@ -1,4 +1,4 @@
-"""Two-view prior — MASt3R-like pointmaps from two RGB images by classical geometry (issue 15).
+"""Two-view prior — MASt3R-like pointmaps from two RGB images by classical geometry.
 
 For RGB-only input without a network (image folders, videos, the RGB stream of TUM/7-Scenes),
 ``pair(i, j)`` reconstructs both images in camera i from the images alone
@@ -28,7 +28,7 @@ For RGB-only input without a network (image folders, videos, the RGB stream of T
    (triangulation angle θ), ``w_r = exp(-(r/reproj_sigma)²)`` (reprojection error r, pixels)
    and ``w_fb = exp(-(e_fb/fb_sigma)²)`` (flow consistency);
 7. descriptors ``D`` and ``Q = 1 + q_gain tanh(contrast/q_contrast)`` are the patch
-   descriptors of the RGB-D prior.
+   descriptors of the RGB-D prior (``descriptors.patch_descriptors``, ``descriptor_Q``).
 
 Intrinsics: ``K`` when calibrated (``--calib``), else :func:`focal_guess_intrinsics` (60°
 horizontal field of view). The SLAM system never sees this guess: in uncalibrated mode it only
@@ -46,20 +46,25 @@ triangulation angle (degrees) of the last pair; ``last_R_ji`` (3, 3) the rotatio
 flagged ``"parallax"`` (well determined without parallax; the frontend poses such frames by
 rotation only), else None.
 
+Memory: per-frame work (descriptors, keypoints) and per-pair flows live in ``cache``, the
+remembered pointmaps of ``mono`` and the third view in ``views``; each is a
+:class:`~mslam.priors.cache.ByteLRU` bounded by ``desc.cache_bytes`` (a view takes
+H·W·32 bytes: about 4000 views at 160x120 in the default 128 MiB).
+
 Public names, in reading order:
     TwoViewPriorConfig, TwoViewPrior
 """
 
 from __future__ import annotations
 
-from collections import OrderedDict
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from mslam.datasets.frame import Frame
 from mslam.priors.base import PairPrediction
-from mslam.priors.descriptors import DescriptorConfig, patch_descriptors
+from mslam.priors.cache import ByteLRU
+from mslam.priors.descriptors import DescriptorConfig, descriptor_Q, patch_descriptors
 from mslam.priors.rgbd import FAILED_Q, fill_depth
 from mslam.priors.twoview_flow import GuideConfig, guided_flow, sift_keypoints
 from mslam.priors.twoview_geometry import (
@@ -176,8 +181,10 @@ class TwoViewPrior:
         self.last_status = "none"
         self.last_R_ji: FloatArray | None = None
         self.last_info: dict[str, float] = {}
-        self._cache: OrderedDict[tuple, object] = OrderedDict()
-        self._views: OrderedDict[int, tuple[FloatArray, FloatArray]] = OrderedDict()
+        #: Descriptors, keypoints and flows (recomputed after eviction), bounded in bytes.
+        self.cache = ByteLRU(cfg.desc.cache_bytes)
+        #: Frame index -> its last two-view pointmap in its own camera and C (``mono``).
+        self.views = ByteLRU(cfg.desc.cache_bytes)
 
     def K_for(self, frame: Frame) -> FloatArray:
         """Intrinsics at the frame's resolution (the focal guess when uncalibrated)."""
@@ -189,22 +196,18 @@ class TwoViewPrior:
         return scale_intrinsics(self.K, tuple(self.image_size), (W, H))
 
     def _cached(self, key: tuple, fn):
-        if key not in self._cache:
-            self._cache[key] = fn()
-            if len(self._cache) > 64:
-                self._cache.popitem(last=False)
-        return self._cache[key]
+        return self.cache.get(key, fn)
 
     def _desc(self, frame: Frame) -> tuple[FloatArray, FloatArray]:
         key = ("desc", int(frame.index), hash(frame.rgb.tobytes()))
         D, contrast = self._cached(key, lambda: patch_descriptors(frame.rgb, self.cfg.desc))
-        return D, 1.0 + self.cfg.q_gain * np.tanh(contrast / self.cfg.q_contrast)
+        return D, descriptor_Q(contrast, self.cfg.q_gain, self.cfg.q_contrast)
 
     # -- protocol ----------------------------------------------------------------------------
     def mono(self, frame: Frame) -> tuple[FloatArray, FloatArray]:
         """``X_ii (H, W, 3), C_ii (H, W)``: the last two-view pointmap of this image, else a
         fronto-parallel plane at distance 1 with ``C = 1`` (module docstring)."""
-        view = self._views.get(int(frame.index))
+        view = self.views.peek(int(frame.index))
         if view is not None and view[0].shape[:2] == frame.shape:
             return view[0].copy(), view[1].copy()
         return self._plane(frame)
@@ -286,16 +289,13 @@ class TwoViewPrior:
 
     def _remember(self, frame: Frame, X: FloatArray, C: FloatArray) -> None:
         X = X / np.median(np.linalg.norm(X, axis=-1))
-        self._views[int(frame.index)] = (X, C)
-        self._views.move_to_end(int(frame.index))
-        if len(self._views) > 256:
-            self._views.popitem(last=False)
+        self.views.put(int(frame.index), (X, C))
 
     def _remembered_depth(self, frame: Frame, shape) -> FloatArray | None:
         """Depth (H, W) of the frame's last two-view pointmap (``third_view``), else None."""
         if not self.cfg.third_view or self.K is None:  # module docstring: calibrated only
             return None
-        view = self._views.get(int(frame.index))
+        view = self.views.peek(int(frame.index))
         if view is None or view[0].shape[:2] != tuple(shape):
             return None
         return view[0][..., 2]

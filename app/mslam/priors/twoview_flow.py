@@ -5,10 +5,10 @@ The two-view prior (:mod:`mslam.priors.twoview`) stands in for MASt3R's pairwise
 time). Its correspondences come from DIS optical flow, which is coarse-to-fine over a pyramid
 whose coarsest level is fixed by the image size: at 160x120 there are three levels (1/4 is the
 coarsest), so DIS follows motions of ~10-15 px only. Measured on the 240-frame synthetic loop
-(160x120), the share of forward–backward consistent pixels falls from 0.70 at 6 frames apart
-(~11° of rotation) to 0.01 at 9 frames (~15°): every pair beyond that — most retrieval
-candidates, and every loop-closure candidate — was declared degenerate (``few_inliers``),
-so no loop could close however well retrieval ranked.
+(160x120), the share of forward–backward consistent pixels of plain DIS falls from 0.70 at 6
+frames apart (~11° of rotation) to 0.01 at 9 frames (~15°): with plain DIS every pair beyond
+that — most retrieval candidates, and every loop-closure candidate — is degenerate
+(``few_inliers``), and no loop closes however well retrieval ranks.
 
 The remedy is the classical one (wide-baseline matching, then dense refinement): SIFT
 keypoints matched by Lowe's ratio test and kept one-to-one give a RANSAC homography

@@ -19,7 +19,7 @@ essential-matrix pose and both homography decompositions, each refined on Sampso
 :func:`choose_pose` keeps the candidates whose cost is within ``ambiguity`` of the best (the
 ones the pair itself cannot tell apart) and picks among them the one whose triangulated
 depths of image i and j agree best (up to scale) with their remembered depths. Without a remembered
-view, the lowest cost wins, as before.
+view, the lowest cost wins.
 
 Public names, in reading order:
     pose_candidates, depth_disagreement, choose_pose

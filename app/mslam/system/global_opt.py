@@ -72,6 +72,7 @@ class Backend:
         stats: RunStats,
     ) -> None:
         self.cfg, self.kernels, self.K, self.stats = cfg, kernels, K, stats
+        self.prior = prior
         self.backend_cfg = cfg.backend()
         self.fusion_cfg = cfg.fusion()
         self.lock = threading.RLock()  # keyframes shared with the background backend
@@ -111,7 +112,21 @@ class Backend:
             features=self.retrieval.features(D, Q),
         )
         with self.lock:
-            return self.keyframes.append(kf)
+            k = self.keyframes.append(kf)
+        keep = getattr(self.prior, "keep", None)  # a prior that holds keyframe features (MASt3R)
+        if keep is not None:
+            keep(frame)
+        return k
+
+    def remove_last_keyframe(self) -> None:
+        """Undo the last :meth:`add_keyframe` and its edges (a failed relocalisation)."""
+        k = len(self.keyframes) - 1
+        self.graph.remove_keyframe(k)
+        with self.lock:
+            kf = self.keyframes.pop_last()
+        forget = getattr(self.prior, "forget", None)
+        if forget is not None:
+            forget(int(kf.frame.index))
 
     def step(self, k: int, known: KnownPairs | None = None) -> None:
         """Everything a new keyframe ``k`` triggers: its graph edges, then the global solve

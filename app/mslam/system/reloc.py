@@ -67,8 +67,7 @@ def relocalise(frame: Frame, prior: Prior, backend: Backend, cfg: RelocConfig) -
     )
     accepted = [e.j for e in backend.graph.edges[before:]]
     if not accepted or (cfg.strict and candidates[0] not in accepted):
-        backend.graph.remove_keyframe(n)
-        backend.keyframes.pop_last()
+        backend.remove_last_keyframe()
         return False
     backend.retrieval.update(features)  # query + insert: the database id becomes n
     kf = backend.keyframes[n]

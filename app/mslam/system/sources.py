@@ -82,7 +82,7 @@ def _make_prior(
         )
     from mslam.priors import mast3r
 
-    return mast3r.load_prior()  # checkpoint from $MSLAM_MAST3R_CHECKPOINT
+    return mast3r.load_prior(cfg=cfg.mast3r_prior() if cfg is not None else None)
 
 
 def open_source(
