@@ -33,6 +33,7 @@ import os
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # before numpy: no spinning BLAS threads
 
 import argparse
+import statistics
 import sys
 import tempfile
 import time
@@ -100,7 +101,10 @@ def bench_problem(name: str, args, kernels, ceres, tmp: Path) -> tuple[list[list
     other = next((k for k in med if k != "mslam fast"), None)
     rows = []
     for k, r in med.items():
-        ratio = f"{r['time'] / med[other]['time']:.2f}" if other and k == "mslam fast" else ""
+        ratio = ""
+        if other and k == "mslam fast":  # per round (A and B under the same load), then median
+            paired = [a["time"] / b["time"] for a, b in zip(runs[k], runs[other])]
+            ratio = f"{statistics.median(paired):.2f} ({', '.join(f'{x:.2f}' for x in paired)})"
         times = ", ".join(f"{x['time']:.2f}" for x in runs[k])
         rows.append([name, k, f"{r['time']:.3f}", times, ratio, f"{r['initial_cost']:.6g}",
                      f"{r['final_cost']:.8g}"])  # fmt: skip
@@ -133,14 +137,13 @@ def main() -> None:
             r, prof = bench_problem(name, args, kernels, ceres, Path(tmp))
             rows += r
             profiles[name] = prof
-            print(table(["problem", "solver", "median s", "runs s", "ratio", "cost 0", "cost"], r))
-    load1 = os.getloadavg()[0]
-    write(rows, profiles, args, ceres is not None, (load0, load1))
+            # written after every problem, so an interrupted run keeps what it measured
+            write(rows, profiles, args, ceres is not None, (load0, os.getloadavg()[0]))
 
 
 def write(rows, profiles, args, have_ceres: bool, load: tuple[float, float]) -> None:
     """Print and write the RESULTS.md section."""
-    header = ["problem", "solver", "median s", "runs (s, in order)", "fast / other",
+    header = ["problem", "solver", "median s", "runs (s, in order)", "fast / other (per round)",
               "initial cost", "final cost"]  # fmt: skip
     body = table(header, rows)
     stages = list(lm.PROFILE_KEYS)
@@ -152,16 +155,19 @@ def write(rows, profiles, args, have_ceres: bool, load: tuple[float, float]) -> 
         prof_rows.append([name, *cells, f"{100 * share:.0f} %", p["trials"]])
     body += (
         f"\n\n{args.iterations} LM iterations per solver; {args.repeat} interleaved rounds "
-        "(each solver in turn), the median reported. Load average "
+        "(each solver in turn), the median time reported; the ratio is the median of the "
+        "per-round ratios (the two solves of a round ran back to back). Load average "
         f"{load[0]:.1f} -> {load[1]:.1f} during the run: other jobs share the 2 cores, so every "
         "figure may be pessimistic, but the solvers shared the load alike. "
         + ("" if have_ceres else "Native Ceres was not built (no g++ or libceres-dev). ")
-        + "Costs are 0.5 sum |r|^2 (Ceres' convention; g2o's chi2 / 2).\n\n"
+        + "Costs are 0.5 sum |r|^2 (Ceres' convention; g2o's chi2 / 2). An iteration of Ceres "
+        "is one linear solve, accepted or not; an iteration of mslam and g2o is one accepted "
+        "step (up to 10 solves), so mslam's solve count is the profile's trials column.\n\n"
         "mslam fast per-stage profile of the median run (ms; symbolic decomposition runs once "
         "per solve, numerical decomposition once per trial):\n\n"
         + table(["problem", *stages, "numerical / total", "trials"], prof_rows)
     )
-    print(body)
+    print(body, flush=True)
     name = args.section or ("ba" if args.arch == "cpu" else "ba-cuda")
     where = "CPU" if args.arch == "cpu" else "CUDA"
     write_section(
