@@ -1,21 +1,29 @@
-"""Bundle adjustment on Ladybug-49 (BAL): reference, fast, scipy least_squares and pyceres.
+"""Bundle adjustment at cuda-bundle-adjustment's scale: mslam fast against native Ceres and g2o.
 
-    python benchmarks/bench_ba.py [--repeat N] [--iterations 50] [--no-scipy] [--no-pyceres]
-                                  [--arch cpu|cuda] [--data FILE]
+    python benchmarks/bench_ba.py [--repeat 3] [--iterations 10] [--only NAME ...]
+                                  [--no-g2o] [--arch cpu|cuda] [--data DIR]
 
-Every solver gets the same iteration cap and the same stopping rule where it has one (Ceres'
-``function_tolerance`` 1e-6). Times are best-of-N wall times of the solve only (file loading and
-the Taichi compilation excluded by a warm-up). Writes the ``ba`` section of RESULTS.md
-(``ba-cuda`` with ``--arch cuda``: the fast kernels on a GPU, the others as always).
+Problems (10 LM iterations each, the seed's benchmark length):
 
-* ref / fast: ``mslam_ref.ba.lm.optimize`` with ``LMConfig(jacobi_scaling=True,
-  function_tolerance=1e-6)`` and the NumPy or Taichi kernel set.
-* scipy: ``least_squares(method="trf", jac="2-point", jac_sparsity=..., x_scale="jac",
-  max_nfev=cap)`` on the additive 9+3 parameterisation (the angle-axis vector itself).
-* pyceres: Ceres through its Python bindings with one Python ``CostFunction`` per observation
-  (analytic Jacobians; pyceres ships no compiled BAL factor), SPARSE_SCHUR, LM. Its time is
-  dominated by ~32k Python callbacks per evaluation, so it is *not* native Ceres' speed; the
-  native figure (0.7-1.1 s, 32 iterations, 13344.32) was measured separately on this machine.
+* ``ladybug49``: BAL Ladybug-49 (49 cameras, 7776 points, 31843 observations).
+* ``kitti07`` / ``kitti00``: generated BAL problems of the size of the ORB-SLAM KITTI graphs
+  (248 / 1332 poses, 26127 / 133383 points, about 95k / 561k observations;
+  ``mslam_ref.ba.synthetic.make_forward_problem``, seed 1): a forward-moving camera, each point
+  seen by a run of 2-12 consecutive views.
+* ``kitti07-se3`` / ``kitti00-se3``: the same scenes as SE(3) + XYZ problems with monocular
+  pinhole edges (g2o's ``EdgeProjectXYZ2UV``), against g2o.
+
+Solvers: mslam fast (``LMConfig(iterations=10)``, Jacobi scaling on the BAL problems; the
+Taichi kernels, the reduced system analysed once and refactored per trial); native Ceres
+(``benchmarks/native/ceres_bal.cc``, SPARSE_SCHUR over SuiteSparse, 2 threads, all tolerances 0
+so it runs its 10 iterations); g2o (``g2opy``: BlockSolverSE3 + LinearSolverEigen + Levenberg).
+
+``--section`` names the RESULTS.md section (on a GPU machine: ``--arch cpu --section
+ba-cuda-host`` then ``--arch cuda`` gives that machine's CPU and GPU figures side by side).
+
+Timing: the solvers run in turn (A, B, A, B, ...), ``--repeat`` rounds, and the table reports
+each one's median; other jobs share the 2 cores, so interleaving spreads their load over all
+solvers alike.
 """
 
 from __future__ import annotations
@@ -25,203 +33,146 @@ import os
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # before numpy: no spinning BLAS threads
 
 import argparse
+import statistics
 import sys
+import tempfile
 import time
 from pathlib import Path
-
-import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT / "reference"), str(ROOT / "fast"), str(ROOT / "benchmarks")]
 
+import _ba_native as native  # noqa: E402
 from _data import BAL_LADYBUG_49, data_dir  # noqa: E402
 from _results import table, write_section  # noqa: E402
 
 from mslam import bal as io  # noqa: E402
-from mslam_ref.ba import cameras, lm, synthetic  # noqa: E402
+from mslam_ref.ba import lm, synthetic  # noqa: E402
 
-CERES_NATIVE = "0.7-1.1 s, 32 it., 13344.32 (native Ceres SPARSE_SCHUR, measured separately)"
+SIZES = {"kitti07": (248, 26127, 3.64), "kitti00": (1332, 133383, 4.21)}
+PROBLEMS = ("ladybug49", "kitti07", "kitti00", "kitti07-se3", "kitti00-se3")
 
 
-def _timed(fn, repeat: int):
-    best, out = float("inf"), None
+def make_problem(name: str, data: Path):
+    """The problem called ``name`` (see the module docstring)."""
+    if name == "ladybug49":
+        return io.read_bal(data / BAL_LADYBUG_49)
+    base = name.removesuffix("-se3")
+    model = "pinhole" if name.endswith("-se3") else "bal"
+    return synthetic.make_forward_problem(*SIZES[base], model=model, seed=1)[0]
+
+
+def run_fast(problem, kernels, iterations: int) -> dict:
+    """One mslam solve: time, costs and the per-stage profile."""
+    cfg = lm.LMConfig(iterations=iterations, jacobi_scaling=problem.cam_dof == 9)
+    t0 = time.perf_counter()
+    res = lm.optimize(problem, cfg, kernels)
+    return {"time": time.perf_counter() - t0, "initial_cost": res.initial_cost,
+            "final_cost": res.final_cost, "profile": res.profile,
+            "trials": sum(h["trials"] for h in res.history)}  # fmt: skip
+
+
+def interleaved(runners: dict, repeat: int) -> dict[str, list[dict]]:
+    """Run every runner once per round, ``repeat`` rounds: {name: [result per round]}."""
+    out: dict[str, list[dict]] = {k: [] for k in runners}
     for _ in range(repeat):
-        t0 = time.perf_counter()
-        out = fn()
-        best = min(best, time.perf_counter() - t0)
-    return best, out
+        for name, fn in runners.items():
+            out[name].append(fn())
+    return out
 
 
-def run_mslam(problem, kernels, cap: int, repeat: int):
-    cfg = lm.LMConfig(iterations=cap, jacobi_scaling=True, function_tolerance=1e-6)
-    tiny, _ = synthetic.make_bal_problem(n_cams=3, n_points=10)
-    lm.optimize(tiny, lm.LMConfig(iterations=1), kernels)  # warm-up / compile
-    t, res = _timed(lambda: lm.optimize(problem, cfg, kernels), repeat)
-    return t, res.final_cost, res.iterations, res.profile
+def median_run(runs: list[dict]) -> dict:
+    """The run with the median time (its profile goes with it)."""
+    return sorted(runs, key=lambda r: r["time"])[len(runs) // 2]
 
 
-def run_scipy(problem, cap: int):
-    import scipy.sparse
-    from scipy.optimize import least_squares
-
-    M, P, O = len(problem.cameras), len(problem.points), len(problem.obs)
-
-    def fun(x):
-        return cameras.bal_residuals(x[: 9 * M].reshape(M, 9), x[9 * M :].reshape(P, 3),
-                                     problem.obs_cam, problem.obs_pt, problem.obs).ravel()  # fmt: skip
-
-    rows = np.repeat(np.arange(2 * O), 12)
-    cols = np.concatenate([
-        np.concatenate([problem.obs_cam[:, None] * 9 + np.arange(9), 9 * M + problem.obs_pt[:, None] * 3 + np.arange(3)], 1)
-    ] * 1)  # fmt: skip
-    cols = np.repeat(cols, 2, axis=0).ravel()
-    A = scipy.sparse.coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(2 * O, 9 * M + 3 * P))
-    x0 = np.r_[problem.cameras.ravel(), problem.points.ravel()]
-    t0 = time.perf_counter()
-    res = least_squares(fun, x0, jac="2-point", jac_sparsity=A, method="trf", x_scale="jac",
-                        max_nfev=cap, ftol=1e-6)  # fmt: skip
-    return time.perf_counter() - t0, float(res.cost), int(res.nfev)
-
-
-def run_pyceres(problem, cap: int):
-    import pyceres
-
-    class BALCost(pyceres.CostFunction):
-        def __init__(self, obs):
-            super().__init__()
-            self.set_num_residuals(2)
-            self.set_parameter_block_sizes([9, 3])
-            self.obs = obs
-
-        def Evaluate(self, params, residuals, jacobians):
-            c, X = params[0], params[1]
-            r, Jc, Jp = _bal_additive(np.asarray(c), np.asarray(X), self.obs)
-            residuals[0], residuals[1] = r
-            if jacobians is not None:
-                if jacobians[0] is not None:
-                    jacobians[0][:] = Jc.ravel()
-                if jacobians[1] is not None:
-                    jacobians[1][:] = Jp.ravel()
-            return True
-
-    cams = problem.cameras.copy()
-    pts = problem.points.copy()
-    prob = pyceres.Problem()
-    costs = []
-    for e in range(len(problem.obs)):
-        cost = BALCost(problem.obs[e].copy())
-        costs.append(cost)
-        prob.add_residual_block(cost, None, [cams[problem.obs_cam[e]], pts[problem.obs_pt[e]]])
-    opts = pyceres.SolverOptions()
-    opts.linear_solver_type = pyceres.LinearSolverType.SPARSE_SCHUR
-    opts.max_num_iterations = cap
-    opts.function_tolerance = 1e-6
-    opts.num_threads = 2
-    opts.minimizer_progress_to_stdout = False
-    summary = pyceres.SolverSummary()
-    t0 = time.perf_counter()
-    pyceres.solve(opts, prob, summary)
-    return (
-        time.perf_counter() - t0,
-        float(summary.final_cost),
-        int(summary.num_successful_steps + summary.num_unsuccessful_steps),
-    )
-
-
-def _bal_additive(c, X, obs):
-    """Residual and Jacobians of one observation w.r.t. the additive angle-axis parameters."""
-    w = c[:3]
-    th = np.linalg.norm(w)
-    W = np.array([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]])
-    if th < 1e-8:
-        R, Jr = np.eye(3) + W, np.eye(3) - 0.5 * W
-    else:
-        R = np.eye(3) + np.sin(th) / th * W + (1 - np.cos(th)) / th**2 * W @ W
-        Jr = np.eye(3) - (1 - np.cos(th)) / th**2 * W + (th - np.sin(th)) / th**3 * W @ W
-    P = R @ X + c[3:6]
-    p = -P[:2] / P[2]
-    r2 = p @ p
-    d = 1 + c[7] * r2 + c[8] * r2 * r2
-    f = c[6]
-    r = f * d * p - obs
-    Dp = f * d * np.eye(2) + 2 * f * (c[7] + 2 * c[8] * r2) * np.outer(p, p)
-    iz = 1 / P[2]
-    A = Dp @ np.array([[-iz, 0, P[0] * iz * iz], [0, -iz, P[1] * iz * iz]])
-    Xh = np.array([[0, -X[2], X[1]], [X[2], 0, -X[0]], [-X[1], X[0], 0]])
-    Jc = np.concatenate([A @ (-R @ Xh @ Jr), A, (d * p)[:, None], (f * r2 * p)[:, None],
-                         (f * r2 * r2 * p)[:, None]], 1)  # fmt: skip
-    return r, Jc, A @ R
+def bench_problem(name: str, args, kernels, ceres, tmp: Path) -> tuple[list[list], dict]:
+    """Table rows and the fast solver's median profile for one problem."""
+    problem = make_problem(name, Path(args.data))
+    runners = {"mslam fast": lambda: run_fast(problem, kernels, args.iterations)}
+    if problem.cam_dof == 9 and ceres is not None:
+        f = tmp / f"{name}.txt"
+        io.write_bal(problem, f)
+        runners["native Ceres"] = lambda: native.run_ceres(ceres, f, args.iterations)
+    if problem.cam_dof == 6 and not args.no_g2o:
+        runners["g2o"] = lambda: native.run_g2o(problem, args.iterations)
+    runs = interleaved(runners, args.repeat)
+    med = {k: median_run(v) for k, v in runs.items()}
+    other = next((k for k in med if k != "mslam fast"), None)
+    rows = []
+    for k, r in med.items():
+        ratio = ""
+        if other and k == "mslam fast":  # per round (A and B under the same load), then median
+            paired = [a["time"] / b["time"] for a, b in zip(runs[k], runs[other])]
+            ratio = f"{statistics.median(paired):.2f} ({', '.join(f'{x:.2f}' for x in paired)})"
+        times = ", ".join(f"{x['time']:.2f}" for x in runs[k])
+        rows.append([name, k, f"{r['time']:.3f}", times, ratio, f"{r['initial_cost']:.6g}",
+                     f"{r['final_cost']:.8g}"])  # fmt: skip
+    return rows, med["mslam fast"]
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--repeat", type=int, default=5)
-    ap.add_argument("--iterations", type=int, default=50)
-    ap.add_argument("--no-scipy", action="store_true")
-    ap.add_argument("--no-pyceres", action="store_true")
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--iterations", type=int, default=10)
+    ap.add_argument("--only", nargs="+", choices=PROBLEMS, default=list(PROBLEMS))
+    ap.add_argument("--no-g2o", action="store_true")
     ap.add_argument("--arch", choices=["cpu", "cuda"], default="cpu", help="Taichi backend")
-    ap.add_argument(
-        "--data",
-        default=str(data_dir() / BAL_LADYBUG_49),
-        help="the BAL file (default: Ladybug-49 in $MSLAM_DATA, else the shared data folder)",
-    )
+    ap.add_argument("--data", default=str(data_dir()), help="the data folder (Ladybug-49)")
+    ap.add_argument("--section", help="RESULTS.md section (default: ba, or ba-cuda on CUDA)")
     args = ap.parse_args()
-    problem = io.read_bal(args.data)
     import mslam_fast
     from mslam.kernels import load_kernels
 
     mslam_fast.init(args.arch, "f64")
-
-    fast_ba, ref_ba = load_kernels("fast").ba, load_kernels("ref").ba
-
-    rows = []
+    kernels = load_kernels("fast").ba
+    for model in ("bal", "pinhole"):  # compile the kernels before timing
+        tiny, _ = synthetic.make_forward_problem(4, 30, model=model)
+        lm.optimize(tiny, lm.LMConfig(iterations=1), kernels)
+    ceres = native.ceres_binary()
+    rows, profiles = [], {}
     load0 = os.getloadavg()[0]
-    t, cost, it, prof = run_mslam(problem, fast_ba, args.iterations, args.repeat)
-    rows.append(
-        [
-            f"mslam fast (Taichi {args.arch.upper()})",
-            f"{t:.3f}",
-            f"{cost:.2f}",
-            it,
-            f"best of {args.repeat}",
-        ]
-    )
-    fast_prof = prof
-    t, cost, it, _ = run_mslam(problem, ref_ba, args.iterations, max(1, args.repeat // 2))
-    rows.append(
-        [
-            "mslam reference (NumPy)",
-            f"{t:.3f}",
-            f"{cost:.2f}",
-            it,
-            f"best of {max(1, args.repeat // 2)}",
-        ]
-    )
-    if not args.no_scipy:
-        t, cost, nfev = run_scipy(problem, args.iterations)
-        rows.append(["scipy least_squares trf", f"{t:.3f}", f"{cost:.2f}", f"{nfev} nfev", "1 run"])
-    if not args.no_pyceres:
-        try:
-            t, cost, it = run_pyceres(problem, args.iterations)
-            rows.append(["pyceres (Python cost functions)", f"{t:.3f}", f"{cost:.2f}", it, "1 run"])
-        except ImportError:
-            rows.append(["pyceres", "n/a", "n/a", "-", "not importable"])
-    rows.append(["native Ceres (reference figure)", "0.7-1.1", "13344.32", 32, "not run here"])
-    load1 = os.getloadavg()[0]
-    body = table(["solver", "solve s", "final cost", "iterations", "timing"], rows)
-    prof_rows = [[k, f"{1e3 * v:.1f}"] for k, v in fast_prof.items()]
+    with tempfile.TemporaryDirectory() as tmp:
+        for name in args.only:
+            r, prof = bench_problem(name, args, kernels, ceres, Path(tmp))
+            rows += r
+            profiles[name] = prof
+            # written after every problem, so an interrupted run keeps what it measured
+            write(rows, profiles, args, ceres is not None, (load0, os.getloadavg()[0]))
+
+
+def write(rows, profiles, args, have_ceres: bool, load: tuple[float, float]) -> None:
+    """Print and write the RESULTS.md section."""
+    header = ["problem", "solver", "median s", "runs (s, in order)", "fast / other (per round)",
+              "initial cost", "final cost"]  # fmt: skip
+    body = table(header, rows)
+    stages = list(lm.PROFILE_KEYS)
+    prof_rows = []
+    for name, p in profiles.items():
+        total = sum(p["profile"].values())
+        cells = [f"{1e3 * p['profile'][s]:.0f}" for s in stages]
+        share = p["profile"]["numerical_decomposition"] / total
+        prof_rows.append([name, *cells, f"{100 * share:.0f} %", p["trials"]])
     body += (
-        "\n\nLadybug-49 (49 cameras, 7776 points, 31843 observations), initial cost 8.509125e+05, "
-        f"iteration cap {args.iterations}, function tolerance 1e-6. "
-        f"Load average {load0:.1f} -> {load1:.1f} during the run (other jobs share the 2 cores; "
-        "best-of-N reduces but does not remove that noise).\n\n"
-        "Fast per-stage profile (ms, last run):\n\n" + table(["stage", "ms"], prof_rows)
+        f"\n\n{args.iterations} LM iterations per solver; {args.repeat} interleaved rounds "
+        "(each solver in turn), the median time reported; the ratio is the median of the "
+        "per-round ratios (the two solves of a round ran back to back). Load average "
+        f"{load[0]:.1f} -> {load[1]:.1f} during the run: other jobs share the 2 cores, so every "
+        "figure may be pessimistic, but the solvers shared the load alike. "
+        + ("" if have_ceres else "Native Ceres was not built (no g++ or libceres-dev). ")
+        + "Costs are 0.5 sum |r|^2 (Ceres' convention; g2o's chi2 / 2). An iteration of Ceres "
+        "is one linear solve, accepted or not; an iteration of mslam and g2o is one accepted "
+        "step (up to 10 solves), so mslam's solve count is the profile's trials column.\n\n"
+        "mslam fast per-stage profile of the median run (ms; symbolic decomposition runs once "
+        "per solve, numerical decomposition once per trial):\n\n"
+        + table(["problem", *stages, "numerical / total", "trials"], prof_rows)
     )
-    print(body)
-    if args.arch == "cpu":
-        write_section("ba", "Bundle adjustment (Ladybug-49)", body)
-    else:
-        write_section("ba-cuda", "Bundle adjustment (Ladybug-49), fast kernels on CUDA", body)
+    print(body, flush=True)
+    name = args.section or ("ba" if args.arch == "cpu" else "ba-cuda")
+    where = "CPU" if args.arch == "cpu" else "CUDA"
+    write_section(
+        name, f"Bundle adjustment (Ladybug-49, KITTI-sized), fast kernels on {where}", body
+    )
 
 
 if __name__ == "__main__":

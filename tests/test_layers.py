@@ -174,6 +174,7 @@ APP_LAYERS: tuple[tuple[str, ...], ...] = (
     (
         "mslam.formats",
         "mslam.bal",
+        "mslam.g2o_ba",
         "mslam.kernels",
         "mslam.evaluate",
         "mslam.baselines",

@@ -32,3 +32,24 @@ def test_cli_ba_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> No
     bad.write_text("1 1\n")
     assert cli.main(["ba", str(bad)]) == 2
     assert "bad.txt:1:" in capsys.readouterr().err
+
+
+def test_cli_ba_g2o(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from mslam.g2o_ba import read_g2o_ba, write_g2o_ba
+
+    p, _ = synthetic.make_pinhole_problem(n_cams=4, n_points=20, stereo_fraction=0.4, seed=4)
+    f = tmp_path / "p.g2o"
+    write_g2o_ba(p, {"poses": list(range(4)), "points": list(range(4, 24))}, f)
+    out = tmp_path / "o.g2o"
+    argv = ["ba", str(f), "--robust", "huber", "--damping", "identity", "--out", str(out)]
+    assert cli.main([*argv, "--iterations", "5"]) == 0
+    rep = json.loads(capsys.readouterr().out)
+    assert rep["cameras"] == 4 and rep["observations"] == len(p.obs_cam)
+    assert rep["final_cost"] < rep["initial_cost"]
+    assert rep["profile"]["symbolic_decomposition"] > 0.0
+    q, _ = read_g2o_ba(out)
+    assert not (q.poses == p.poses).all()
+    bad = tmp_path / "bad.g2o"
+    bad.write_text("VERTEX_SE3:EXPMAP 1 0 0 0\n")
+    assert cli.main(["ba", str(bad)]) == 2
+    assert "bad.g2o:1:" in capsys.readouterr().err

@@ -1,7 +1,8 @@
-"""``mslam ba PROBLEM``: bundle-adjust a BAL problem file and print the result as JSON.
+"""``mslam ba PROBLEM``: bundle-adjust a BAL or g2o problem file and print the result as JSON.
 
     mslam ba problem-49-7776-pre.txt [--kernels ref|fast] [--iterations N] [--out FILE.bal]
                                      [--damping jacobi|identity] [--function-tolerance T]
+    mslam ba graph.g2o [--robust none|huber|tukey] ...   (SE(3) + XYZ, ``mslam.g2o_ba``)
 
 The JSON holds ``initial_cost``, ``final_cost`` (0.5 sum of squared residuals, as Ceres),
 ``iterations``, ``stop_reason``, ``seconds`` (the solve only: file loading and, with
@@ -34,7 +35,10 @@ def register(subparsers: Any) -> None:
         description="Levenberg-Marquardt bundle adjustment (g2o schedule, Schur complement) of "
         "a BAL problem file; prints JSON.",
     )
-    p.add_argument("problem", type=Path, help="BAL problem file (problem-*.txt)")
+    p.add_argument("problem", type=Path, help="BAL problem file (problem-*.txt) or g2o file (.g2o)")
+    p.add_argument("--robust", choices=("none", "huber", "tukey"), default="none",
+                   help="robust kernel of a .g2o problem (deltas sqrt(5.991) mono, sqrt(7.815) "
+                   "stereo; default none)")  # fmt: skip
     p.add_argument("--kernels", choices=("ref", "fast"), default="ref")
     p.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
                    help="where the fast kernels run; cuda needs an NVIDIA GPU (default: cpu)")  # fmt: skip
@@ -61,9 +65,20 @@ def _kernel_set(name: str) -> Any:
     return kernels
 
 
+def _load(args: argparse.Namespace) -> tuple[Any, Any]:
+    """The problem and the function that formats its optimised copy for ``--out``."""
+    if args.problem.suffix == ".g2o":
+        from mslam.g2o_ba import format_g2o_ba, read_g2o_ba
+
+        problem, ids = read_g2o_ba(args.problem, robust=args.robust)
+        return problem, lambda q: format_g2o_ba(q, ids)
+    from mslam import bal as io
+
+    return io.read_bal(args.problem), io.format_bal
+
+
 def run(args: argparse.Namespace) -> int:
     """Load, solve, report (and optionally write)."""
-    from mslam import bal as io
     from mslam.device import use_device
     from mslam_ref.ba import lm
 
@@ -76,7 +91,7 @@ def run(args: argparse.Namespace) -> int:
         from mslam.outdir import check_target
 
         check_target(args.out, args.overwrite, kind="file")
-    problem = io.read_bal(args.problem)
+    problem, fmt = _load(args)
     kernels = _kernel_set(args.kernels)
     cfg = lm.LMConfig(
         iterations=args.iterations,
@@ -89,13 +104,13 @@ def run(args: argparse.Namespace) -> int:
     if args.out is not None:
         from mslam.outdir import write_file_atomic
 
-        write_file_atomic(args.out, io.format_bal(res.problem), args.overwrite)
+        write_file_atomic(args.out, fmt(res.problem), args.overwrite)
     print_json(
         {
             "problem": str(args.problem),
-            "cameras": len(problem.cameras),
+            "cameras": len(problem.params()[0]),
             "points": len(problem.points),
-            "observations": len(problem.obs),
+            "observations": len(problem.obs_cam),
             "kernels": args.kernels,
             "device": args.device,
             "initial_cost": res.initial_cost,

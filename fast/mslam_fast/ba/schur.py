@@ -5,6 +5,8 @@ CSR list built once by ``build_structure``, so results are deterministic):
 
 * ``normal_blocks``: W per observation (O items); U and bc per (camera, row) (M d items, each
   summing the camera's observations); V and bl per point (P items).
+* ``jacobi_scale``: D and the scaled U, bc per camera (M items), V, bl per point (P items), W per
+  observation (O items).
 * ``schur_complement``: V^-1 per point (adjugate, P items); Y = W V^-1 and Y bl per observation
   (O items); rhs per (camera, row); S per (block, row) over the block's observation pairs
   (B d items).
@@ -20,12 +22,14 @@ import numpy as np
 import taichi as ti
 
 from mslam_fast._kernels import ba as K
+from mslam_fast._matching_host import _kept, _zeros
 from mslam_fast._runtime import ensure_init, prepare
 from mslam_fast._types import f64, nd, template
 from mslam_ref.ba.schur import BlockStructure
 
 __all__ = [
     "back_substitute",
+    "jacobi_scale",
     "normal_blocks",
     "schur_complement",
 ]
@@ -81,6 +85,26 @@ def _V_k(Jp: nd, w: nd, r: nd, ptr: nd, order: nd, V: nd, bl: nd, k: template):
             bl[p, i] = -accb[i]
             for j in ti.static(range(3)):
                 V[p, i, j] = acc[i, j]
+
+
+@ti.kernel
+def _jac_diag_k(A: nd, b: nd, D: nd, As: nd, bs: nd, n: template):
+    for c in range(A.shape[0]):  # D, D A D and D b of one n x n block
+        for i in ti.static(range(n)):
+            D[c, i] = 1.0 / (1.0 + ti.sqrt(A[c, i, i]))
+        for i in ti.static(range(n)):
+            bs[c, i] = b[c, i] * D[c, i]
+            for j in ti.static(range(n)):
+                As[c, i, j] = A[c, i, j] * D[c, i] * D[c, j]
+
+
+@ti.kernel
+def _jac_W_k(W: nd, Dc: nd, Dp: nd, oc: nd, op: nd, Ws: nd, d: template):
+    for e in range(W.shape[0]):
+        c, p = oc[e], op[e]
+        for i in ti.static(range(d)):
+            for j in ti.static(range(3)):
+                Ws[e, i, j] = W[e, i, j] * Dc[c, i] * Dp[p, j]
 
 
 @ti.kernel
@@ -181,6 +205,26 @@ def normal_blocks(
     return U, V, W, bc, bl
 
 
+def jacobi_scale(
+    U: Any, V: Any, W: Any, bc: Any, bl: Any, structure: BlockStructure
+) -> tuple[Array, Array, Array, Array, Array, Array, Array]:
+    """Taichi twin of ``mslam_ref.ba.schur.jacobi_scale`` (per camera, per point, per
+    observation; no reductions)."""
+    s, d = structure, structure.cam_dof
+    U, V = prepare(U, "U", (d, d)), prepare(V, "V", (3, 3))
+    W, bc, bl = prepare(W, "W", (d, 3)), prepare(bc, "bc", d), prepare(bl, "bl", 3)
+    M, P, O = len(U), len(V), len(W)
+    Us, Vs, Ws, bcs, bls, Dc, Dp = (_z(M, d, d), _z(P, 3, 3), _z(O, d, 3), _z(M, d), _z(P, 3),
+                                    _z(M, d), _z(P, 3))  # fmt: skip
+    if M:
+        _jac_diag_k(U, bc, Dc, Us, bcs, d)
+    if P:
+        _jac_diag_k(V, bl, Dp, Vs, bls, 3)
+    if O:
+        _jac_W_k(W, Dc, Dp, s.obs_cam, s.obs_pt, Ws, d)
+    return Us, Vs, Ws, bcs, bls, Dc, Dp
+
+
 def schur_complement(
     U: Any, V: Any, W: Any, bc: Any, bl: Any, lam: float, structure: BlockStructure
 ) -> tuple[Array, Array, Array]:
@@ -190,7 +234,10 @@ def schur_complement(
     U, V = prepare(U, "U", (d, d)), prepare(V, "V", (3, 3))
     W, bc, bl = prepare(W, "W", (d, 3)), prepare(bc, "bc", d), prepare(bl, "bl", 3)
     O, M, P = len(W), s.n_cams, s.n_points
-    Vinv, Y, t, rhs = _z(P, 3, 3), _z(O, d, 3), _z(O, d), _z(M, d)
+    Vinv, rhs = _z(P, 3, 3), _z(M, d)
+    # Y and t are written whole before they are read: kept per thread and shape (fresh pages
+    # cost a fault each; on CUDA they stay in GPU memory)
+    Y, t = _kept(("ba_Y", O, d), lambda: (_zeros((O, d, 3)), _zeros((O, d))))
     S = _z(len(s.block_row), d, d)
     if P:
         _vinv_k(V, float(lam), Vinv)

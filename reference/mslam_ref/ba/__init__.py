@@ -6,9 +6,9 @@ complement, back-substitution) exist in ``mslam_ref.ba`` and, as Taichi twins, i
 ``kernels`` argument (any object with ``cameras`` and ``schur`` attributes — the application's
 kernel set provides one).
 
-Modules, in reading order: robust, cameras, problem, schur, lm, synthetic.
+Modules, in reading order: robust, cameras, problem, schur, reduced, lm, synthetic.
 """
 
-from mslam_ref.ba import cameras, lm, problem, robust, schur, synthetic
+from mslam_ref.ba import cameras, lm, problem, reduced, robust, schur, synthetic
 
-__all__ = ["cameras", "lm", "problem", "robust", "schur", "synthetic"]
+__all__ = ["cameras", "lm", "problem", "reduced", "robust", "schur", "synthetic"]

@@ -28,8 +28,10 @@ with ``(H + lam I) dx = b``, ``2 dx^T b - dx^T H dx = dx^T (lam dx + b)``.
 
 The driver is shared by both kernel sets: ``kernels`` is any object with ``cameras`` and
 ``schur`` modules — those of ``mslam_ref.ba`` (the default) or their Taichi twins in
-``mslam_fast.ba`` (the application's kernel set passes one); the reduced Cholesky always runs
-on the host (``mslam_ref.ba.schur.solve_reduced``).
+``mslam_fast.ba`` (the application's kernel set passes one). The reduced camera system is
+analysed once per call (``reduced.analyse``: ordering and storage, the "symbolic_decomposition"
+stage) and refactored every trial (``reduced.factor_solve``, "numerical_decomposition"), by the
+kernel set's ``reduced`` module when it has one, else ``mslam_ref.ba.reduced``.
 
 Public names, in reading order: LMConfig, LMResult, PROFILE_KEYS, robust_chi2, solve_damped,
 optimize.
@@ -47,6 +49,7 @@ from typing import Any
 
 import numpy as np
 
+from mslam_ref.ba import reduced as _reduced
 from mslam_ref.ba import schur as _schur
 from mslam_ref.ba.profile import StageClock
 from mslam_ref.conventions import FloatArray
@@ -177,20 +180,6 @@ def solve_damped(
     return dc, k.schur.back_substitute(Vinv, W, bl, dc, structure)
 
 
-def _jacobi_scale(blocks: tuple[FloatArray, ...], structure: Any):
-    """Scale the blocks in place by ``D = 1 / (1 + sqrt(diag))``: ``H <- D H D``, ``b <- D b``."""
-    U, V, W, bc, bl = blocks
-    Dc = 1.0 / (1.0 + np.sqrt(np.diagonal(U, axis1=1, axis2=2)))
-    Dp = 1.0 / (1.0 + np.sqrt(np.diagonal(V, axis1=1, axis2=2)))
-    W *= Dc[structure.obs_cam][:, :, None]
-    W *= Dp[structure.obs_pt][:, None, :]
-    U *= Dc[:, :, None] * Dc[:, None, :]
-    V *= Dp[:, :, None] * Dp[:, None, :]
-    bc *= Dc
-    bl *= Dp
-    return (U, V, W, bc, bl), (Dc, Dp)
-
-
 def _linear_system(problem: Any, kernels: Any, structure: Any, cams, points):
     r, Jc, Jp = problem.linearize(kernels, cams, points)
     s = problem.information * np.sum(r * r, axis=-1)
@@ -224,14 +213,20 @@ def _initial_lambda(problem: Any, blocks: tuple[FloatArray, ...], tau: float) ->
     return tau * float(diag.max()) if diag.size else tau
 
 
+def _reduced_solver(kernels: Any) -> Any:
+    """The kernel set's ``reduced`` module (analyse, factor_solve), else the reference's."""
+    return getattr(kernels, "reduced", None) or _reduced
+
+
 def _trial(problem, k, st, state: _State, blocks, D, b, clock: StageClock) -> tuple[float, Any]:
     """One damped solve at ``state.lam``: the gain ratio rho (-1 on failure) and the new
-    ``(cams, points, F)`` when the step was computed."""
+    ``(cams, points, F)`` when the step was computed. ``st`` is ``(structure, symbolic)``."""
     U, V, W, bc, bl = blocks
+    st, sym = st
     with clock("schur_complement"):
         S, rhs, Vinv = k.schur.schur_complement(U, V, W, bc, bl, state.lam, st)
     with clock("numerical_decomposition"):
-        dc = _schur.solve_reduced(S, rhs, st)
+        dc = _reduced_solver(k).factor_solve(sym, S, rhs)
     if dc is None:
         return -1.0, None
     with clock("schur_complement"):
@@ -293,6 +288,8 @@ def optimize(
         st = _schur.build_structure(
             problem.obs_cam, problem.obs_pt, len(cams), len(points), problem.cam_dof
         )
+    with clock("symbolic_decomposition"):  # once: ordering, storage, scatter map
+        sym = _reduced_solver(k).analyse(st)
     with clock("compute_error"):
         state = _State(cams, points, robust_chi2(problem, k, cams, points))
     F0, history, stop = state.F, [], "iterations"
@@ -301,14 +298,15 @@ def optimize(
             state.F, blocks = _linear_system(problem, k, st, state.cams, state.points)
             D = None
             if cfg.jacobi_scaling:
-                blocks, D = _jacobi_scale(blocks, st)
+                *scaled, Dc, Dp = k.schur.jacobi_scale(*blocks, st)
+                blocks, D = tuple(scaled), (Dc, Dp)
         if it == 0:
             state.lam = _initial_lambda(problem, blocks, cfg.tau)
         b = np.concatenate([blocks[3].ravel(), blocks[4].ravel()])
         rho, trials, F_prev = -1.0, 0, state.F
         while rho <= 0.0 and trials < cfg.max_trials:
             trials += 1
-            rho, new = _trial(problem, k, st, state, blocks, D, b, clock)
+            rho, new = _trial(problem, k, (st, sym), state, blocks, D, b, clock)
             if rho > 0.0:
                 state.cams, state.points, state.F = new
             _damping_update(state, rho, cfg)

@@ -33,8 +33,8 @@ once per ``optimize()`` call. Unknowns that are fixed or unobserved get identity
 zero right-hand side (their step is exactly 0), which keeps every block shape static.
 
 Public names, in reading order:
-    BlockStructure, build_structure, normal_blocks, schur_complement, dense_reduced,
-    solve_reduced, back_substitute
+    BlockStructure, build_structure, normal_blocks, jacobi_scale, schur_complement,
+    dense_reduced, solve_reduced, back_substitute
 
 Shapes: M cameras, P points, O observations, d camera DoF, B blocks of S, Q observation pairs.
 
@@ -60,6 +60,7 @@ __all__ = [
     "back_substitute",
     "build_structure",
     "dense_reduced",
+    "jacobi_scale",
     "normal_blocks",
     "schur_complement",
     "solve_reduced",
@@ -201,6 +202,36 @@ def normal_blocks(
     bc = -_segment_sum(np.einsum("oik,ok->oi", wJc, r), s.cam_obs, s.cam_ptr)
     bl = -_segment_sum(np.einsum("oik,ok->oi", wJp, r), s.pt_obs, s.pt_ptr)
     return U, V, W, bc, bl
+
+
+def jacobi_scale(
+    U: FloatArray,
+    V: FloatArray,
+    W: FloatArray,
+    bc: FloatArray,
+    bl: FloatArray,
+    structure: BlockStructure,
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
+    """Ceres' Jacobi scaling of the blocks: ``H <- D H D``, ``b <- D b``, ``D = 1 / (1 + sqrt(diag H))``.
+
+    Solving the scaled system and multiplying the step by D turns the damping ``lam I`` into
+    Marquardt's ``lam D^-2`` (``mslam_ref.ba.lm.LMConfig.jacobi_scaling``).
+
+    Args:
+        U, V, W, bc, bl: from :func:`normal_blocks` (not modified).
+        structure: the block structure.
+
+    Returns:
+        The scaled U (M, d, d), V (P, 3, 3), W (O, d, 3), bc (M, d), bl (P, 3), and
+        Dc (M, d), Dp (P, 3).
+    """
+    s = structure
+    Dc = 1.0 / (1.0 + np.sqrt(np.diagonal(U, axis1=1, axis2=2)))
+    Dp = 1.0 / (1.0 + np.sqrt(np.diagonal(V, axis1=1, axis2=2)))
+    Ws = W * Dc[s.obs_cam][:, :, None] * Dp[s.obs_pt][:, None, :]
+    Us = U * (Dc[:, :, None] * Dc[:, None, :])
+    Vs = V * (Dp[:, :, None] * Dp[:, None, :])
+    return Us, Vs, Ws, bc * Dc, bl * Dp, Dc, Dp
 
 
 def schur_complement(
