@@ -149,3 +149,5 @@ MAP_ATOL = 1e-9
 MAP_PLY_ATOL = 1e-5
 #: Rerun stores positions as float32: a keyframe translation of ~1 m read back (absolute)
 RERUN_F32_POSITION = 1e-5
+#: a similarity fitted by RANSAC + Umeyama to exact correspondences (loop-closure check)
+SIM3_FIT = 1e-6

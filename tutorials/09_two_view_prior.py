@@ -199,7 +199,7 @@ from scipy.spatial import cKDTree
 from mslam.map_metrics import align_points, evaluate_map, truth_from_rgbd
 from mslam.system.outputs import reconstruction_points
 
-truth = truth_from_rgbd(seq)
+truth = truth_from_rgbd(depth_seq)  # the frames with their depth (the run read none)
 xyz, _ = reconstruction_points(system)
 m_traj, res, info = evaluate_map(xyz, ts, T, seq.timestamps, seq.T_WC, truth)
 m_icp, _, info_icp = evaluate_map(xyz, ts, T, seq.timestamps, seq.T_WC, truth, refine="icp")

@@ -109,19 +109,19 @@ def test_atomic_write_leaves_no_partial_file(tmp_path, monkeypatch) -> None:
     io.write_tum(path, np.arange(4.0), T)
     before = path.read_bytes()
 
-    import mslam.commands as commands
+    import mslam.atomic as atomic
 
-    real_replace = commands.os.replace
+    real_replace = atomic.os.replace
 
     def failing_replace(src, dst):
         raise OSError("disk full")
 
-    monkeypatch.setattr(commands.os, "replace", failing_replace)
+    monkeypatch.setattr(atomic.os, "replace", failing_replace)
     with pytest.raises(OSError, match="disk full"):
         io.write_tum(path, np.arange(4.0) + 10, T)
     with pytest.raises(OSError, match="disk full"):
         io.write_ply(tmp_path / "cloud.ply", np.zeros((5, 3)), np.zeros((5, 3), np.uint8))
-    monkeypatch.setattr(commands.os, "replace", real_replace)
+    monkeypatch.setattr(atomic.os, "replace", real_replace)
     assert path.read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["traj.txt"]
 
