@@ -13,16 +13,15 @@ Rules:
   key by key, recursively for sections.
 * Floats such as ``1e-8`` parse as floats (upstream adds a YAML float resolver for this).
 * Every key must exist in the packaged ``base.yaml``: an unknown key (a typo) is a
-  ``ValueError`` naming the file and the key, as is a value of the wrong type.
+  ``ValueError`` naming the file, the key and the nearest known key, as is a wrong type.
 * Overrides ``SECTION.KEY=VALUE`` (``--set tracking.Q_conf=2.0``) are parsed as YAML scalars and
   applied last.
 * Every numeric value is then checked against its stated range (finite, integral where the key
   counts something, positive where it divides or scales) in ``mslam.config_ranges``; the
   error names the key and the ``--set`` or file it came from.
 
-Public names, in reading order:
-    SlamConfig, DatasetConfig, RelocConfig, load_config, parse_override,
-    config_to_dict, CONFIG_DIR
+Public names, in reading order: SlamConfig, DatasetConfig, RelocConfig, load_config,
+parse_override, config_to_dict, CONFIG_DIR
 """
 
 from __future__ import annotations
@@ -37,15 +36,8 @@ from typing import Any
 
 import yaml
 
-__all__ = [
-    "CONFIG_DIR",
-    "DatasetConfig",
-    "RelocConfig",
-    "SlamConfig",
-    "config_to_dict",
-    "load_config",
-    "parse_override",
-]
+__all__ = ["CONFIG_DIR", "DatasetConfig", "RelocConfig", "SlamConfig", "config_to_dict"]
+__all__ += ["load_config", "parse_override"]
 
 #: Folder of the packaged YAML files (``base.yaml``, ``calib.yaml``).
 CONFIG_DIR = Path(__file__).with_name("configs")

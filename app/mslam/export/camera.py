@@ -16,10 +16,9 @@ Public names, in reading order:
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 
+from mslam.system.frontend import SlamSystem
 from mslam_ref.conventions import FloatArray
 
 __all__ = ["focal_from_pointmap", "run_intrinsics"]
@@ -67,7 +66,7 @@ def focal_from_pointmap(
     return np.array([[f, 0.0, cx], [0.0, f, cy], [0.0, 0.0, 1.0]])
 
 
-def run_intrinsics(system: Any) -> tuple[FloatArray, bool]:
+def run_intrinsics(system: SlamSystem) -> tuple[FloatArray, bool]:
     """The intrinsics at the pointmap resolution and whether they were given (calibrated mode).
 
     Returns:

@@ -29,6 +29,7 @@ import cv2
 import numpy as np
 
 from mslam.atomic import write_atomic
+from mslam.system.frontend import SlamSystem
 from mslam_ref import sim3, so3
 from mslam_ref.conventions import FloatArray
 
@@ -91,7 +92,7 @@ def _world_to_camera(T_WC: FloatArray) -> tuple[FloatArray, FloatArray]:
     return np.array([qi[3], qi[0], qi[1], qi[2]]), -R_cw @ np.asarray(T_WC[:3], np.float64)
 
 
-def _posed_images(system: Any, all_frames: bool) -> list[tuple[int, int, FloatArray]]:
+def _posed_images(system: SlamSystem, all_frames: bool) -> list[tuple[int, int, FloatArray]]:
     """(frame index, keyframe or -1, T_WC) of each image, keyframes from their final pose."""
     kf_of = {int(kf.frame.index): k for k, kf in enumerate(system.keyframes)}
     T_kf = system.keyframes.poses()
@@ -106,7 +107,7 @@ def _posed_images(system: Any, all_frames: bool) -> list[tuple[int, int, FloatAr
     return [rows[i] for i in sorted(rows)]
 
 
-def colmap_model(system: Any, K: FloatArray, all_frames: bool = False) -> ColmapModel:
+def colmap_model(system: SlamSystem, K: FloatArray, all_frames: bool = False) -> ColmapModel:
     """Build the model of a finished run.
 
     Args:
@@ -227,7 +228,7 @@ def write_colmap_binary(out_dir: str | Path, model: ColmapModel) -> None:
 
 def write_colmap(
     out_dir: str | Path,
-    system: Any,
+    system: SlamSystem,
     sequence: Any,
     K: FloatArray,
     all_frames: bool = False,

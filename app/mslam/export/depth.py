@@ -26,12 +26,12 @@ Public names, in reading order:
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
 
 import cv2
 import numpy as np
 
 from mslam.atomic import write_atomic
+from mslam.system.frontend import SlamSystem
 from mslam_ref import sim3, so3
 from mslam_ref.conventions import FloatArray
 
@@ -79,7 +79,7 @@ def render_depth(
     return depth.reshape(H, W), conf.reshape(H, W)
 
 
-def _frame_rows(system: Any) -> list[tuple[int, float, int, FloatArray]]:
+def _frame_rows(system: SlamSystem) -> list[tuple[int, float, int, FloatArray]]:
     """(index, timestamp, keyframe, T_WC (8,)) of every posed frame, final keyframe poses."""
     T_kf = system.keyframes.poses()
     rows = []
@@ -91,7 +91,9 @@ def _frame_rows(system: Any) -> list[tuple[int, float, int, FloatArray]]:
     return rows
 
 
-def write_depth_maps(out_dir: str | Path, system: Any, K: FloatArray, origin: str = "") -> int:
+def write_depth_maps(
+    out_dir: str | Path, system: SlamSystem, K: FloatArray, origin: str = ""
+) -> int:
     """Write the depth files of every posed frame into ``out_dir``; returns how many frames.
 
     Args:

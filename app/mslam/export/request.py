@@ -25,6 +25,9 @@ from typing import Any
 
 import numpy as np
 
+from mslam.datasets.frame import FrameSequence
+from mslam.system.frontend import SlamSystem
+
 __all__ = ["ExportRequest"]
 
 #: Names in the output set that ``write_outputs`` owns (an export may not take them).
@@ -118,7 +121,7 @@ class ExportRequest:
             if self._tmp is not None:
                 self._tmp.unlink(missing_ok=True)
 
-    def write(self, stage: Path, system: Any, sequence: Any) -> dict[str, Any]:
+    def write(self, stage: Path, system: SlamSystem, sequence: FrameSequence) -> dict[str, Any]:
         """Write the exports into the staged set ``stage``; returns what was written."""
         done: dict[str, Any] = {}
         K, origin = None, ""
@@ -147,7 +150,7 @@ class ExportRequest:
             done["depth"] = write_depth_maps(stage / "depth", system, K, origin)
         return done
 
-    def _finish_recording(self, system: Any, sequence: Any) -> None:
+    def _finish_recording(self, system: SlamSystem, sequence: FrameSequence) -> None:
         """Pending pointmaps, the final trajectory, the aligned ground truth; then close."""
         self._tap.finish(system)
         _, ts, T = system.frame_poses()
@@ -155,7 +158,9 @@ class ExportRequest:
         self._recorder.close()
 
 
-def _aligned_ground_truth(ts: np.ndarray, T: np.ndarray, sequence: Any) -> np.ndarray | None:
+def _aligned_ground_truth(
+    ts: np.ndarray, T: np.ndarray, sequence: FrameSequence
+) -> np.ndarray | None:
     """Ground-truth positions (G, 3) moved into the run's world by the inverse Sim(3) alignment
     of the estimate onto the ground truth (``gt ≈ s R p + t``)."""
     gt = getattr(sequence, "T_WC", None)
