@@ -140,3 +140,14 @@ def test_rgbd_prior_on_rgb_frames_names_twoview(rgb_folder, tmp_path, capsys):
     assert rc == 2 and err.count("\n") == 1, err
     assert "needs depth images" in err and "--prior twoview" in err
     assert not (tmp_path / "o").exists()
+
+
+def test_summary_says_what_the_edge_counts_are(tmp_path, capsys):
+    """The console names what counts as a loop-closure edge: every non-consecutive edge that
+    retrieval proposed and the check accepted, not only the closures of a loop."""
+    from mslam.cli import main
+
+    out = tmp_path / "o"
+    assert main(["run", "synthetic:loop:8:32x24", "--out", str(out), "--kernels", "ref"]) == 0
+    err = capsys.readouterr().err
+    assert "between non-consecutive keyframes found by retrieval" in err

@@ -175,8 +175,10 @@ def _print_summary(s: dict, out: Path) -> None:
     lines += [
         f"  relocalisations {s['relocalisations']} of {s['reloc_attempts']} attempts"
         f"{' at frames ' + reloc if reloc else ''}",
-        f"  keyframes {s['keyframes']}, edges {s['edges']} "
-        f"(loop closure {s['loop_closure_edges']})",
+        f"  keyframes {s['keyframes']}, edges {s['edges']}: "
+        f"{s['edges'] - s['loop_closure_edges']} between consecutive keyframes or from "
+        f"relocalisation, {s['loop_closure_edges']} between non-consecutive keyframes found by "
+        f"retrieval and verified (loop-closure candidates; {s.get('loop_closure_candidates_unverified', 0)} refused)",
         f"  {s['seconds']:.1f} s, {s['frames_per_second'] or 0:.2f} frames/s",
     ]
     if "ate_rmse" in s:
