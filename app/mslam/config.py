@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import importlib
 import re
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
@@ -36,8 +37,15 @@ from typing import Any
 
 import yaml
 
-__all__ = ["CONFIG_DIR", "DatasetConfig", "RelocConfig", "SlamConfig", "config_to_dict"]
-__all__ += ["load_config", "parse_override"]
+__all__ = [
+    "CONFIG_DIR",
+    "DatasetConfig",
+    "RelocConfig",
+    "SlamConfig",
+    "config_to_dict",
+    "load_config",
+    "parse_override",
+]
 
 #: Folder of the packaged YAML files (``base.yaml``, ``calib.yaml``).
 CONFIG_DIR = Path(__file__).with_name("configs")
@@ -112,11 +120,8 @@ class SlamConfig:
     sources: tuple[str, ...] = ()
 
     def _typed(self, module: str, cls_name: str, section: str) -> Any:
-        import importlib
-
-        return self._section_as(
-            getattr(importlib.import_module(f"mslam_ref.{module}"), cls_name), section
-        )
+        cls = getattr(importlib.import_module(f"mslam_ref.{module}"), cls_name)
+        return self._section_as(cls, section)
 
     def _section_as(self, cls: type, section: str) -> Any:
         """``cls`` (a dataclass) from the section's keys it has; the rest keep its defaults."""
@@ -144,8 +149,7 @@ class SlamConfig:
         budget = int(dict(self.sections.get(section, {})).get(key, 0))
         if budget <= 0:
             return 1
-        # The nearest stride (not the largest keeping >= budget pixels): the grid holds between
-        # half and twice the budget once the stride exceeds 1.
+        # The nearest stride: the grid holds half to twice the budget once the stride exceeds 1.
         return max(1, round((shape[0] * shape[1] / budget) ** 0.5))
 
     def backend_pixel_stride(self, shape: tuple[int, int]) -> int:
@@ -164,8 +168,8 @@ class SlamConfig:
         """Side of the cells in which the new-keyframe test counts distinct frame pixels: about
         ``tracking.keyframe_cells`` cells over an (H, W) frame, never finer than the tracking
         grid (its stride when the key is 0)."""
-        cells = self._grid_stride("tracking", "keyframe_cells", shape)
-        return max(cells, self.tracking_pixel_stride(shape))
+        return max(self._grid_stride("tracking", "keyframe_cells", shape),
+                   self.tracking_pixel_stride(shape))  # fmt: skip
 
     def retrieval(self) -> Any:
         """``mslam_ref.retrieval.RetrievalConfig`` from ``retrieval.*`` (the one place the

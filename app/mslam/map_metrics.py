@@ -347,7 +347,8 @@ def evaluate_map(
     refine: str = "none",
     seed: int = 0,
 ) -> tuple[MapMetrics, Any, dict[str, Any]]:
-    """Align the map with the trajectory's ATE transform (and ICP), then :func:`map_metrics`.
+    """Align the map with the trajectory's ATE transform (or the cameras' poses, or ICP after
+    it), then :func:`map_metrics`.
 
     Args:
         map_points: (N, 3) the run's map in its own world frame.
@@ -356,8 +357,8 @@ def evaluate_map(
         truth_points: (P, 3) the truth in the ground truth's world frame.
         align: "sim3" (default), "se3" or "none"; the same transform moves the map.
         max_diff: association tolerance (s).
-        refine: "none" or "icp" (:func:`icp_refine` from the trajectory's transform, whose
-            scale it keeps).
+        refine: "none", "poses" (:func:`pose_alignment`: positions and orientations) or
+            "icp" (:func:`icp_refine` from the trajectory's transform, whose scale it keeps).
         seed: seed of the point draws.
 
     Returns:

@@ -150,10 +150,11 @@ def summary_dict(system: SlamSystem, meta: dict[str, Any], ev: dict[str, Any]) -
     spans = [e.j - e.i for e in graph.edges if e.kind == "retrieval"]
     seconds = float(meta.get("seconds", 0.0))
     frames = st.frames
+    _, _, T_WC = system.frame_poses()
     out = {
         "source": meta.get("source"),
         "frames": frames,
-        "frames_with_pose": len(system.frame_poses()[0]),
+        "frames_with_pose": len(T_WC),
         "keyframes": len(system.keyframes),
         "edges": len(graph),
         "edge_candidates_tested": graph.candidates_tested,
@@ -184,12 +185,7 @@ def summary_dict(system: SlamSystem, meta: dict[str, Any], ev: dict[str, Any]) -
         health_report(system.poses, frames, out["frames_with_pose"], out["prior"], ev.get("ate"))
     )
     out.update(
-        divergence_report(
-            system.divergence,
-            system.backend.loop_checks,
-            system.frame_poses()[2],
-            out["warnings"],
-        )
+        divergence_report(system.divergence, system.backend.loop_checks, T_WC, out["warnings"])
     )
     if "ate" in ev:
         out["ate"] = ev["ate"]
