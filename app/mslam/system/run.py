@@ -12,6 +12,7 @@ import threading
 import time
 import warnings
 from collections.abc import Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
 from types import FrameType
 from typing import Any, Protocol
 
@@ -83,13 +84,13 @@ def run_slam(
     skipped: list[dict[str, Any]] = []
     t0 = time.perf_counter()
     try:
-        with _sigint_at_frame_boundary() as stop:
+        with _sigint_at_frame_boundary() as stop, _ReadAhead(seq) as reader:
             for i in range(n):
                 if stop.is_set():
                     interrupted = True
                     break
                 try:
-                    frame = seq[i]
+                    frame = reader.get(i)
                     if shape is None:
                         shape = frame.shape
                     elif frame.shape != shape:
@@ -136,6 +137,40 @@ def _skip(
     system.stats.skipped_frames += 1
     skipped.append({"frame": i, "reason": str(exc)})
     warnings.warn(f"{name}: skipping frame {i}: {exc}", RuntimeWarning, stacklevel=3)
+
+
+class _ReadAhead:
+    """Frame ``i + 1`` is read on one worker thread while frame ``i`` is processed.
+
+    Decoding and resizing (OpenCV) release the GIL, so the read of the next frame overlaps the
+    current frame's work instead of adding to it. Only the worker reads the sequence, in
+    order, one frame at a time, so a reader with state (a video capture, a render cache) sees
+    the same calls as a plain loop; a read's exception is raised by :meth:`get`.
+    """
+
+    def __init__(self, seq: Any) -> None:
+        self.seq = seq
+        self.pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="mslam-read")
+        self.pending: dict[int, Future[Frame]] = {}
+
+    def __enter__(self) -> _ReadAhead:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.pool.shutdown(wait=True, cancel_futures=True)
+
+    def _submit(self, i: int) -> None:
+        if i < len(self.seq) and i not in self.pending:
+            self.pending[i] = self.pool.submit(self.seq.__getitem__, i)
+
+    def get(self, i: int) -> Frame:
+        """Frame ``i`` (read now unless it was read ahead); starts reading frame ``i + 1``."""
+        self._submit(i)
+        fut = self.pending.pop(i)
+        try:
+            return fut.result()
+        finally:
+            self._submit(i + 1)
 
 
 class _HardStop(KeyboardInterrupt):
