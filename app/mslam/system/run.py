@@ -81,6 +81,7 @@ def run_slam(
     interrupted = False
     shape = None
     skipped: list[dict[str, Any]] = []
+    frames = _ReadAhead(seq, source.prior)
     t0 = time.perf_counter()
     try:
         with _sigint_at_frame_boundary() as stop:
@@ -89,7 +90,7 @@ def run_slam(
                     interrupted = True
                     break
                 try:
-                    frame = seq[i]
+                    frame = frames[i]
                     if shape is None:
                         shape = frame.shape
                     elif frame.shape != shape:
@@ -102,6 +103,7 @@ def run_slam(
                         ) from None
                     _skip(system, skipped, source.name, i, exc)
                 else:
+                    frames.prefetch(i + 1)  # the prior's own work on frame i + 1, beside i's
                     status = system.process(frame)
                     if observer is not None:
                         observer.after_frame(i, frame, system, status)
@@ -115,6 +117,7 @@ def run_slam(
     except KeyboardInterrupt:
         interrupted = True
     finally:
+        frames.close()
         if bar is not None:
             bar.close()
     system.close()  # the background backend (if any) finishes its queued keyframes
@@ -136,6 +139,41 @@ def _skip(
     system.stats.skipped_frames += 1
     skipped.append({"frame": i, "reason": str(exc)})
     warnings.warn(f"{name}: skipping frame {i}: {exc}", RuntimeWarning, stacklevel=3)
+
+
+class _ReadAhead:
+    """``seq[i]``, where :meth:`prefetch` may have read frame i already: with a prior that
+    prefetches (``RGBDPrior.prefetching``), frame i + 1 is read before frame i is processed
+    and handed to ``prior.prefetch``, whose worker thread does that frame's own work while
+    frame i is tracked. A read error of the frame ahead is raised when its turn comes."""
+
+    def __init__(self, seq: Any, prior: Any) -> None:
+        self.seq, self.prior = seq, prior
+        self.on = bool(getattr(prior, "prefetching", False))
+        self._ahead: tuple[int, Any] | None = None
+
+    def __getitem__(self, i: int) -> Frame:
+        ahead, self._ahead = self._ahead, None
+        if ahead is None or ahead[0] != i:
+            return self.seq[i]
+        if isinstance(ahead[1], Exception):
+            raise ahead[1]
+        return ahead[1]
+
+    def prefetch(self, i: int) -> None:
+        if not self.on or i >= len(self.seq):
+            return
+        try:
+            self._ahead = (i, self.seq[i])
+        except (OSError, ValueError, cv2.error) as exc:
+            self._ahead = (i, exc)
+            return
+        self.prior.prefetch(self._ahead[1])
+
+    def close(self) -> None:
+        """Wait for the prior's worker: no thread outlives the run, whatever ended it."""
+        if self.on:
+            self.prior.join_prefetch()
 
 
 class _HardStop(KeyboardInterrupt):
