@@ -22,8 +22,7 @@ DEVICE_ENTRIES = {"mslam_fast.resident"}
 FAST_MODULES = sorted(
     m.name
     for m in pkgutil.walk_packages(mslam_fast.__path__, "mslam_fast.")
-    if not any(part.startswith("_") for part in m.name.split("."))
-    and m.name not in DEVICE_ENTRIES
+    if not any(part.startswith("_") for part in m.name.split(".")) and m.name not in DEVICE_ENTRIES
 )
 
 
