@@ -105,3 +105,41 @@ def test_no_prefetch_thread_is_left_after_an_exception(monkeypatch: pytest.Monke
     with pytest.raises(RuntimeError, match="tracking failed"):
         run_slam(src, cfg, load_kernels("fast"))
     assert _workers() == []
+
+
+class _Unreadable:
+    """The frames of ``seq`` with frame ``bad`` unreadable (``OSError``)."""
+
+    def __init__(self, seq, bad: int) -> None:
+        self.seq, self.bad = seq, bad
+
+    def __len__(self) -> int:
+        return len(self.seq)
+
+    def __getitem__(self, i: int):
+        if i == self.bad:
+            raise OSError(f"frame {i}: cannot read")
+        return self.seq[i]
+
+
+@pytest.mark.parametrize("skip", [True, False])
+def test_a_frame_read_ahead_fails_in_its_own_turn(skip: bool) -> None:
+    def run(prefetch: bool):
+        cfg = load_config(CONFIG[0], [*CONFIG[1], f"rgbd_prior.prefetch={str(prefetch).lower()}"])
+        src = open_source(SOURCE, cfg, prior="rgbd", max_frames=8)
+        src = replace(src, sequence=_Unreadable(src.sequence, 5))
+        with pytest.warns(RuntimeWarning, match="skipping frame 5"):
+            return run_slam(src, cfg, load_kernels("fast"), skip_bad_frames=True)[0]
+
+    if skip:
+        on, off = run(True), run(False)
+        assert on.stats.skipped_frames == off.stats.skipped_frames == 1
+        assert on.stats.frames == off.stats.frames == 7  # the frames after it are processed
+        _same_run(on, off)
+    else:
+        cfg = load_config(CONFIG[0], [*CONFIG[1], "rgbd_prior.prefetch=true"])
+        src = open_source(SOURCE, cfg, prior="rgbd", max_frames=8)
+        src = replace(src, sequence=_Unreadable(src.sequence, 5))
+        with pytest.raises(ValueError, match="cannot read frame 5"):
+            run_slam(src, cfg, load_kernels("fast"))
+        assert _workers() == []
