@@ -10,9 +10,10 @@ chosen kernel set at a working resolution (``dataset.long_side``), frame by fram
 * the peak resident memory of the process.
 
 Usage: ``python benchmarks/profile_system.py --long-side 512 [--frames 40] [--kernels fast]
-[--precision f32] [--set KEY=VALUE] [--json OUT] [--data DIR]``; writes the section
-``profile-<long_side>-<frames>-<kernels>`` of RESULTS.md (or the figures as JSON to OUT, which
-is how ``bench_system.py --resolution`` runs one profile per process).
+[--precision f32] [--arch cpu|cuda] [--set KEY=VALUE] [--json OUT] [--data DIR]``; writes the
+section ``profile-<long_side>-<frames>-<kernels>`` (``-cuda`` appended on CUDA) of RESULTS.md
+(or the figures as JSON to OUT, which is how ``bench_system.py --resolution`` runs one
+profile per process).
 """
 
 from __future__ import annotations
@@ -116,6 +117,7 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=None, help="first N frames (default: all 150)")
     ap.add_argument("--kernels", default="fast", choices=("ref", "fast"))
     ap.add_argument("--precision", default="f64", choices=("f64", "f32"), help="fast kernels")
+    ap.add_argument("--arch", default="cpu", choices=("cpu", "cuda"), help="fast kernels")
     ap.add_argument("--config", default="rgbd", help="config file or packaged name (rgbd_512)")
     ap.add_argument("--set", action="append", default=[], help="config override KEY=VALUE")
     ap.add_argument("--json", type=Path, help="write the figures here instead of RESULTS.md")
@@ -127,7 +129,7 @@ def main() -> None:
     if args.kernels == "fast":
         import mslam_fast
 
-        mslam_fast.init("cpu", args.precision)
+        mslam_fast.init(args.arch, args.precision)
         # Compile the kernels first, with the run's settings (some are compile-time constants).
         profile(64, 6, "fast", args.set, args.config, clip)
     r = profile(args.long_side, args.frames, args.kernels, args.set, args.config, clip)
@@ -138,12 +140,14 @@ def main() -> None:
     command = (
         f"python benchmarks/profile_system.py --long-side {args.long_side}"
         f"{f' --frames {args.frames}' if args.frames else ''} --kernels {args.kernels}{prec}"
+        + (f" --arch {args.arch}" if args.arch != "cpu" else "")
         + (f" --config {args.config}" if args.config != "rgbd" else "")
         + "".join(f" --set {o}" for o in args.set)
     )
     text = report(r, command)
     print(text)
     name = f"profile-{args.long_side}-{args.frames or 'all'}-{args.kernels}{prec.split()[-1] if prec else ''}"
+    name += "-cuda" if args.arch == "cuda" else ""
     write_section(name, f"Stage profile, {r['size']}, {args.kernels} kernels", text)
 
 

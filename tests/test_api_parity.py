@@ -1,7 +1,9 @@
 """Every public name of ``mslam_fast.<module>`` is a Taichi twin of ``mslam_ref.<module>``:
 the reference has it, with the same parameters (names, kinds and defaults; annotations are
 not compared), and the fast name is its own function, never the reference object forwarded.
-The kernel set's pieces exist on both sides."""
+The kernel set's pieces exist on both sides. ``mslam_fast.resident`` is the one module
+without a twin: its entries keep arrays on the device between calls, and each has the
+parameters of the reference function it stands for."""
 
 from __future__ import annotations
 
@@ -14,10 +16,13 @@ import pytest
 import mslam_fast
 from mslam.kernels import PIECES
 
+#: Public modules of ``mslam_fast`` that are not twins: the device-resident entries.
+DEVICE_ENTRIES = {"mslam_fast.resident"}
+
 FAST_MODULES = sorted(
     m.name
     for m in pkgutil.walk_packages(mslam_fast.__path__, "mslam_fast.")
-    if not any(part.startswith("_") for part in m.name.split("."))
+    if not any(part.startswith("_") for part in m.name.split(".")) and m.name not in DEVICE_ENTRIES
 )
 
 
@@ -53,3 +58,15 @@ def test_kernel_set_pieces_exist_in_both(piece: str) -> None:
         module = importlib.import_module(f"{package}.{piece}")
         for name in PIECES[piece]:
             assert name in module.__all__, f"{package}.{piece}.{name} missing"
+
+
+def test_resident_entries_have_the_reference_parameters() -> None:
+    from mslam_fast import resident
+    from mslam_ref import fusion, matching
+
+    pairs = [
+        (resident.ResidentMatcher.match, matching.match),
+        (resident.ResidentFusion.update_pointmap, fusion.update_pointmap),
+    ]
+    for method, ref in pairs:
+        assert _params(method)[1:] == _params(ref), method.__qualname__  # [0] is self

@@ -48,6 +48,9 @@ class KernelSet:
         backend: has ``solve`` (paper §3.5).
         ba: a namespace with ``cameras`` and ``schur`` modules, the ``kernels`` argument of
             ``mslam_ref.ba.lm.optimize``.
+        resident: ``mslam_fast.resident`` for ``"fast"`` (matching and fusion with the
+            keyframe's arrays kept on the device, docs/matching.md "Device-resident
+            arrays"), None for ``"ref"``.
     """
 
     name: str
@@ -56,6 +59,7 @@ class KernelSet:
     fusion: ModuleType
     backend: ModuleType
     ba: SimpleNamespace
+    resident: ModuleType | None = None
 
 
 def load_kernels(name: str = "fast") -> KernelSet:
@@ -71,4 +75,5 @@ def load_kernels(name: str = "fast") -> KernelSet:
     package = "mslam_ref" if name == "ref" else "mslam_fast"
     mods = {piece: importlib.import_module(f"{package}.{piece}") for piece in PIECES}
     ba = SimpleNamespace(cameras=mods.pop("ba.cameras"), schur=mods.pop("ba.schur"))
-    return KernelSet(name=name, ba=ba, **mods)
+    resident = importlib.import_module("mslam_fast.resident") if name == "fast" else None
+    return KernelSet(name=name, ba=ba, resident=resident, **mods)

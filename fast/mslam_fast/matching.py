@@ -23,6 +23,7 @@ Precision: everything follows the runtime float type (f64 or f32), descriptors i
 candidates can then resolve differently.
 """
 
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -304,14 +305,22 @@ def refine_matches(
 
 
 def _match_args(
-    X11: Any, X21: Any, D11: Any, D21: Any, idx_init: Any, cfg: MatchingConfig
+    X11: Any,
+    X21: Any,
+    D11: Any,
+    D21: Any,
+    idx_init: Any,
+    cfg: MatchingConfig,
+    D2_kept: Callable[[Array], Any] | None = None,
 ) -> tuple[tuple[Any, ...], bool]:
     """Checked and converted arguments of ``_match_k`` (host arrays; ``idx`` and ``valid`` at
     positions 9 and 10 are its outputs) and whether the inputs had a batch axis.
 
     Split from :func:`match` so that ``benchmarks/bench_matching.py`` can time the kernel alone
     on copies held in ``ti.ndarray``s (on the GPU for CUDA: the way upstream's figure is
-    measured).
+    measured), and so that ``mslam_fast.resident`` can pass ``D21`` as a device array it keeps:
+    ``D2_kept(D2)`` receives the (B·N, F) host descriptors, unchecked, and returns their checked
+    device form.
     """
     X1, X2, D1, D2, idx0, batched = check_match_inputs(X11, X21, D11, D21, idx_init)
     B, H, W, F = D1.shape
@@ -320,7 +329,10 @@ def _match_args(
         idx0 = np.zeros((1, 1), dtype=np.int64)  # unused by the kernel (use_init = 0)
     X1, X2 = host.points(X1), host.points(X2).reshape(B, N, 3)
     D1 = host.descriptors(D1.reshape(B * N, F), "D11")
-    D2 = host.descriptors(D2.reshape(B * N, F), "D21")
+    if D2_kept is None or cfg.radius <= 0:
+        D2 = host.descriptors(D2.reshape(B * N, F), "D21")
+    else:
+        D2 = D2_kept(D2.reshape(B * N, F))
     if cfg.radius > 0:
         D1p, D2p = host.scratch(B, H, W, F, N, int(cfg.radius) * int(cfg.dilation_max))
     else:  # no refinement: one-row stand-ins, so the kernel's copy loops are trivial

@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 import taichi as ti
 
+from mslam_fast._device import to_device
 from mslam_fast._kernels import sim3 as S
 from mslam_fast._kernels import tracking as KT
 from mslam_fast._runtime import ensure_init
@@ -143,14 +144,15 @@ def _linearize_prepared(
     K: Any,
     shape: tuple[int, ...],
 ) -> tuple[Array, Array, float]:
-    """Kernel call on inputs already validated and converted by :func:`_prepared`."""
-    n = len(X_f)
+    """Kernel call on inputs already validated and converted by :func:`_prepared`: ``X_f`` and
+    ``X_k`` flat (3N,), all four host arrays or device arrays (``mslam_fast._device``)."""
+    n = Q.shape[0]
     n_chunks = max(1, -(-n // CHUNK))
     out = np.zeros((n_chunks, KT.NACC))
     if n:
-        T_ = np.ascontiguousarray(np.asarray(T, np.float64).reshape(1, 8), dtype=X_f.dtype)
+        T_ = np.asarray(T, np.float64).reshape(1, 8).astype(ensure_init().dtype)
         prm = _params(cfg, K, shape)
-        _linearize_k(T_, X_f.reshape(-1), X_k.reshape(-1), Q, valid, prm, out, K is not None)
+        _linearize_k(T_, X_f, X_k, Q, valid, prm, out, K is not None)
     return _unpack(out.sum(axis=0))
 
 
@@ -168,7 +170,8 @@ def linearize(
     T = _sim3.validate(T_CkCf, "T_CkCf")
     if T.shape != (8,):
         raise ValueError(f"T_CkCf: expected shape (8,), got {T.shape}")
-    return _linearize_prepared(T, *_prepared(X_f, X_k, Q, valid), cfg, K, X_k.shape)
+    Xf, Xk, Qp, vp = _prepared(X_f, X_k, Q, valid)
+    return _linearize_prepared(T, Xf.reshape(-1), Xk.reshape(-1), Qp, vp, cfg, K, X_k.shape)
 
 
 def solve(
@@ -180,8 +183,18 @@ def solve(
     cfg: TrackingConfig = TrackingConfig(),  # noqa: B008
     K: Any = None,
 ) -> tuple[Array, TrackingInfo]:
-    """Taichi twin of ``mslam_ref.tracking.solve``: the reference driver, this linearize."""
+    """Taichi twin of ``mslam_ref.tracking.solve``: the reference driver, this linearize.
+
+    The converted inputs go to the device once per solve (``mslam_fast._device.to_device``),
+    not once per iteration."""
     X_f, X_k, Q, valid, K = ref_tracking.check_problem(X_f, X_k, Q, valid, K)
     shape = X_k.shape
-    lin = lambda T, Xf, Xk, Qp, vp, c, KK: _linearize_prepared(T, Xf, Xk, Qp, vp, c, KK, shape)
-    return ref_tracking.solve_with(lin, *_prepared(X_f, X_k, Q, valid), T_CkCf_init, cfg, K)
+    Xf, Xk, Qp, vp = _prepared(X_f, X_k, Q, valid)
+    n = len(Qp)
+    labels = ("tracking.X_f", "tracking.X_k", "tracking.Q", "tracking.valid")
+    flat = (Xf.reshape(-1), Xk.reshape(-1), Qp, vp)
+    d = [to_device(a, label) if n else a for a, label in zip(flat, labels, strict=True)]
+    lin = lambda T, Xf_, Xk_, Q_, v_, c, KK: _linearize_prepared(
+        T, d[0], d[1], d[2], d[3], c, KK, shape
+    )
+    return ref_tracking.solve_with(lin, Xf, Xk, Qp, vp, T_CkCf_init, cfg, K)

@@ -40,7 +40,7 @@ class _Recording:
 
 def test_frames_come_back_in_order_read_once_by_one_worker() -> None:
     seq = _Recording(6)
-    with _ReadAhead(seq) as reader:
+    with _ReadAhead(seq, None) as reader:
         got = [reader.get(i) for i in range(6)]
     assert got == [10 * i for i in range(6)]
     assert seq.reads == list(range(6))  # each frame read once, in order
@@ -50,7 +50,7 @@ def test_frames_come_back_in_order_read_once_by_one_worker() -> None:
 
 def test_a_failed_read_is_raised_for_that_frame_and_the_next_still_loads() -> None:
     seq = _Recording(4, bad=2)
-    with _ReadAhead(seq) as reader:
+    with _ReadAhead(seq, None) as reader:
         assert reader.get(1) == 10
         with pytest.raises(OSError, match="frame 2"):
             reader.get(2)
@@ -59,7 +59,7 @@ def test_a_failed_read_is_raised_for_that_frame_and_the_next_still_loads() -> No
 
 def test_no_reader_thread_outlives_the_loop() -> None:
     seq = _Recording(50)
-    with pytest.raises(RuntimeError), _ReadAhead(seq) as reader:
+    with pytest.raises(RuntimeError), _ReadAhead(seq, None) as reader:
         reader.get(0)
         raise RuntimeError("the frame's processing failed")
     assert not any(t.name.startswith("mslam-read") for t in threading.enumerate())

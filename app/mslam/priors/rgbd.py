@@ -33,10 +33,12 @@ Public names, in reading order:
 
 from __future__ import annotations
 
+import contextlib
+import threading
 import time
 from collections import defaultdict
+from collections.abc import Callable
 from contextlib import contextmanager
-from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -45,8 +47,9 @@ from mslam.datasets.frame import Frame
 from mslam.priors import rgbd_pose as pose
 from mslam.priors.base import PairPrediction
 from mslam.priors.cache import ByteLRU
-from mslam.priors.descriptors import DescriptorConfig, descriptor_Q, patch_descriptors
+from mslam.priors.descriptors import descriptor_Q, patch_descriptors
 from mslam.priors.keypoints import detect, ratio_matches
+from mslam.priors.rgbd_config import RGBDPriorConfig
 from mslam_ref import sim3, so3
 from mslam_ref.conventions import FloatArray
 from mslam_ref.pointmap import camera_rays, scale_intrinsics
@@ -56,79 +59,6 @@ __all__ = ["FAILED_Q", "RGBDPrior", "RGBDPriorConfig", "fill_depth"]
 #: Descriptor confidence ``Q_ji`` of a pair whose pose estimate failed: ``sqrt(Q_ii · Q_ji)``
 #: stays far below upstream's ``Q_conf = 1.5`` for any ``Q_ii <= 1 + q_gain``.
 FAILED_Q = 0.01
-
-
-@dataclass(frozen=True)
-class RGBDPriorConfig:
-    """Parameters of the RGB-D prior.
-
-    Attributes:
-        features: "sift" or "orb".
-        n_features: keypoints per image (the strongest responses are kept).
-        contrast_threshold: SIFT's DoG contrast threshold. OpenCV's default (0.04) is absolute
-            in intensity and starves low-contrast images (160x120 frames of smooth textures
-            kept 12-140 of the 2000 keypoints); a low threshold lets ``n_features`` rank by
-            response instead, so the detector yields its quota whatever the contrast.
-        ratio: Lowe ratio-test threshold.
-        detect_min_width: frames narrower than this are upscaled for detection only.
-        detect_max_width: frames wider than this are downscaled to it for detection only
-            (0 = never): keypoints at 512 px cost 4x those at 256 px, and ICP on the depth
-            maps makes up the lost keypoint precision.
-        ransac_px: RANSAC reprojection threshold in frame pixels.
-        ransac_iters: RANSAC iterations.
-        min_inliers: fewer inliers means "pose failed".
-        max_translation: a PnP translation longer than this (m) is rejected as degenerate.
-        icp_iters: point-to-plane ICP iterations refining the PnP pose on the depth maps
-            (0 = off).
-        icp_points: about this many of j's pixels take part (a regular grid,
-            ``rgbd_pose.icp_sample``), whatever the resolution.
-        icp_dist, icp_dist_final: association distance (m) of the first and last ICP iteration
-            (geometric schedule in between).
-        icp_min_frac: the refined pose is kept only if at least this share of j's valid pixels
-            is associated at the end.
-        icp_max_change: ... and if it moves the PnP pose by less than this (m, and rad).
-        icp_min_agree: ... and if it still explains this share of the matches the PnP pose
-            explains (ICP can slide along a plane; ``rgbd_pose.icp_agrees``).
-        fill_depth: depth (m) used when a frame has no valid depth at all.
-        conf_max, conf_sigma: ``C = 1 + conf_max exp(-σ(z) / conf_sigma)`` on valid depth.
-        consistency_tol: relative depth disagreement that marks a pixel of j inconsistent.
-        inconsistent_factor, covis_factor: multipliers of ``C - 1`` (inconsistent / out of view).
-        q_gain, q_contrast: ``Q = 1 + q_gain tanh(contrast / q_contrast)``.
-        desc: patch-descriptor parameters.
-    """
-
-    features: str = "sift"
-    n_features: int = 2000
-    contrast_threshold: float = 0.01
-    ratio: float = 0.8
-    detect_min_width: int = 480
-    detect_max_width: int = 0
-    ransac_px: float = 1.5
-    ransac_iters: int = 500
-    min_inliers: int = 15
-    max_translation: float = 5.0
-    icp_iters: int = 12
-    icp_points: int = 10000
-    icp_dist: float = 0.1
-    icp_dist_final: float = 0.02
-    icp_min_frac: float = 0.25
-    icp_max_change: float = 0.15
-    icp_min_agree: float = 0.5
-    fill_depth: float = 3.0
-    conf_max: float = 20.0
-    conf_sigma: float = 0.05
-    consistency_tol: float = 0.05
-    inconsistent_factor: float = 0.1
-    covis_factor: float = 0.2
-    q_gain: float = 6.0
-    q_contrast: float = 0.04
-    desc: DescriptorConfig = field(default_factory=DescriptorConfig)
-
-    def __post_init__(self) -> None:
-        if self.features not in ("sift", "orb"):
-            raise ValueError(f"features: expected 'sift' or 'orb', got {self.features!r}")
-        if self.fill_depth <= 0 or self.ransac_px <= 0 or self.min_inliers < 4:
-            raise ValueError("fill_depth, ransac_px must be > 0 and min_inliers >= 4")
 
 
 def fill_depth(depth: FloatArray, default: float = 3.0) -> tuple[FloatArray, np.ndarray]:
@@ -170,7 +100,11 @@ class RGBDPrior:
     Use :meth:`from_intrinsics` to build one from ``K`` and an image size instead.
     """
 
-    def __init__(self, sequence, cfg: RGBDPriorConfig = RGBDPriorConfig()) -> None:
+    def __init__(
+        self,
+        sequence,
+        cfg: RGBDPriorConfig = RGBDPriorConfig(),  # noqa: B008 (frozen, immutable)
+    ) -> None:
         if sequence.K is None or not sequence.has_depth:
             raise ValueError(f"sequence: {sequence.name} needs intrinsics and depth for RGB-D")
         if getattr(sequence, "width", None) and getattr(sequence, "height", None):
@@ -182,7 +116,10 @@ class RGBDPrior:
 
     @classmethod
     def from_intrinsics(
-        cls, K: FloatArray, image_size: tuple[int, int], cfg: RGBDPriorConfig = RGBDPriorConfig()
+        cls,
+        K: FloatArray,
+        image_size: tuple[int, int],
+        cfg: RGBDPriorConfig = RGBDPriorConfig(),  # noqa: B008 (frozen, immutable)
     ) -> RGBDPrior:
         """Build from ``K`` (3, 3) valid at ``image_size = (W, H)``."""
         obj = object.__new__(cls)
@@ -201,6 +138,8 @@ class RGBDPrior:
         self.cache = ByteLRU(cfg.desc.cache_bytes)
         self._rays_by_shape: dict[tuple[int, int], FloatArray] = {}
         self._hashes: dict[int, int] | None = None  # image content hashes during a pair call
+        self._prefetched: tuple[int, Callable[..., None]] | None = None  # (frame index, join)
+        self._seconds_lock = threading.Lock()  # the prefetch worker times its steps too
 
     @contextmanager
     def _timed(self, step: str):
@@ -208,7 +147,8 @@ class RGBDPrior:
         try:
             yield
         finally:
-            self.seconds[step] += time.perf_counter() - t0
+            with self._seconds_lock:
+                self.seconds[step] += time.perf_counter() - t0
 
     def _key(self, kind: str, frame: Frame) -> tuple:
         h = self._hashes.get(id(frame.rgb)) if self._hashes else None
@@ -243,6 +183,7 @@ class RGBDPrior:
             n_inliers: PnP inliers (< ``min_inliers`` means failure).
         """
         cfg = self.cfg
+        self._settle(frame_i, frame_j)
         if frame_j.depth is None:
             raise ValueError("frame_j: the RGB-D prior needs a depth image")
         uv_i, d_i = self._cached("features", frame_i, self._features)
@@ -342,6 +283,7 @@ class RGBDPrior:
 
     def mono(self, frame: Frame) -> tuple[FloatArray, FloatArray]:
         """``X_ii (H, W, 3)`` from the (filled) depth and ``C_ii (H, W)``."""
+        self._settle(frame)
         X, C, _ = self._view(frame)
         return X, C
 
@@ -352,6 +294,7 @@ class RGBDPrior:
         """
         # The cache keys hash each image's content: once per image for the whole pair, not at
         # each of the ~10 lookups (0.14 ms each at 512x384). Any other caller hashes anew.
+        self._settle(frame_i, frame_j)
         self._hashes = {id(f.rgb): hash(f.rgb.tobytes()) for f in (frame_i, frame_j)}
         try:
             return self._pair(frame_i, frame_j)
@@ -392,3 +335,50 @@ class RGBDPrior:
             C_ji = np.ones_like(C_jj)
             Q_jj = np.full_like(Q_jj, FAILED_Q)
         return PairPrediction(X_ii, C_ii, D_ii, Q_ii, X_ji, C_ji, D_jj, Q_jj)
+
+    # -- prefetch ----------------------------------------------------------------------------
+    @property
+    def prefetching(self) -> bool:
+        """Whether :meth:`prefetch` does anything (``cfg.prefetch``)."""
+        return self.cfg.prefetch
+
+    def prefetch(self, frame: Frame) -> None:
+        """Start ``frame``'s own work (keypoints, descriptors, depth view, ICP target: nothing
+        that depends on a keyframe) on a worker thread; the same functions as on demand, so
+        the same values. They enter the cache when a pair or view of that frame is asked for,
+        or at the next :meth:`prefetch` or :meth:`join_prefetch`."""
+        self.join_prefetch()
+        if not self.cfg.prefetch:
+            return
+        key = lambda kind: self._key(kind, frame)
+        view = self.cache.peek(key("view"))
+        held: dict[str, tuple] = {}
+
+        def compute_view() -> tuple:
+            held["view"] = self._compute_view(frame)
+            return held["view"]
+
+        jobs = {
+            key("features"): lambda: self._features(frame),
+            key("view"): compute_view,
+            key("desc"): lambda: self._patch_descriptors(frame),
+        }
+        if self.cfg.icp_iters > 0 and frame.depth is not None:
+            K = self.K_for(frame)
+            jobs[key("icp_target")] = lambda: pose.icp_target(
+                frame.depth, K, held.get("view", view)[0]
+            )
+        self._prefetched = (int(frame.index), self.cache.compute_alongside(jobs))
+
+    def join_prefetch(self) -> None:
+        """Wait for the prefetch in flight, if any, and cache its results. A failed step is
+        dropped: it runs again, and raises, when its result is asked for."""
+        pending, self._prefetched = self._prefetched, None
+        if pending is not None:
+            with contextlib.suppress(Exception):
+                pending[1]()
+
+    def _settle(self, *frames: Frame) -> None:
+        """Join the prefetch when it is working on one of ``frames``."""
+        if self._prefetched and any(int(f.index) == self._prefetched[0] for f in frames):
+            self.join_prefetch()

@@ -82,15 +82,16 @@ def run_slam(
     interrupted = False
     shape = None
     skipped: list[dict[str, Any]] = []
+    frames = _ReadAhead(seq, source.prior)
     t0 = time.perf_counter()
     try:
-        with _sigint_at_frame_boundary() as stop, _ReadAhead(seq) as reader:
+        with _sigint_at_frame_boundary() as stop:
             for i in range(n):
                 if stop.is_set():
                     interrupted = True
                     break
                 try:
-                    frame = reader.get(i)
+                    frame = frames.get(i)
                     if shape is None:
                         shape = frame.shape
                     elif frame.shape != shape:
@@ -103,6 +104,7 @@ def run_slam(
                         ) from None
                     _skip(system, skipped, source.name, i, exc)
                 else:
+                    frames.prefetch(i + 1)  # the prior's own work on frame i + 1, beside i's
                     status = system.process(frame)
                     if observer is not None:
                         observer.after_frame(i, frame, system, status)
@@ -116,6 +118,7 @@ def run_slam(
     except KeyboardInterrupt:
         interrupted = True
     finally:
+        frames.close()
         if bar is not None:
             bar.close()
     system.close()  # the background backend (if any) finishes its queued keyframes
@@ -145,11 +148,15 @@ class _ReadAhead:
     Decoding and resizing (OpenCV) release the GIL, so the read of the next frame overlaps the
     current frame's work instead of adding to it. Only the worker reads the sequence, in
     order, one frame at a time, so a reader with state (a video capture, a render cache) sees
-    the same calls as a plain loop; a read's exception is raised by :meth:`get`.
+    the same calls as a plain loop; a read's exception is raised when that frame's turn comes.
+    With a prior that prefetches (``RGBDPrior.prefetching``, off by default), :meth:`prefetch`
+    also hands frame ``i + 1`` to ``prior.prefetch`` before frame ``i`` is processed, whose
+    worker thread does that frame's own work while frame ``i`` is tracked.
     """
 
-    def __init__(self, seq: Any) -> None:
-        self.seq = seq
+    def __init__(self, seq: Any, prior: Any) -> None:
+        self.seq, self.prior = seq, prior
+        self.on = bool(getattr(prior, "prefetching", False))
         self.pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="mslam-read")
         self.pending: dict[int, Future[Frame]] = {}
 
@@ -157,7 +164,7 @@ class _ReadAhead:
         return self
 
     def __exit__(self, *exc: object) -> None:
-        self.pool.shutdown(wait=True, cancel_futures=True)
+        self.close()
 
     def _submit(self, i: int) -> None:
         if i < len(self.seq) and i not in self.pending:
@@ -171,6 +178,25 @@ class _ReadAhead:
             return fut.result()
         finally:
             self._submit(i + 1)
+
+    def prefetch(self, i: int) -> None:
+        """Hand frame ``i`` to the prior's prefetch (when the prior prefetches)."""
+        if not self.on or i >= len(self.seq):
+            return
+        self._submit(i)
+        try:
+            frame = self.pending[i].result()
+        except (OSError, ValueError, cv2.error):
+            return  # raised by get(i) in its turn
+        self.prior.prefetch(frame)
+
+    def close(self) -> None:
+        """Wait for the prior's worker and the reader: no thread outlives the run."""
+        try:
+            if self.on:
+                self.prior.join_prefetch()
+        finally:
+            self.pool.shutdown(wait=True, cancel_futures=True)
 
 
 class _HardStop(KeyboardInterrupt):

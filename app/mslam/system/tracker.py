@@ -106,6 +106,13 @@ class Tracker:
         self.fusion_cfg = cfg.fusion()
         #: (H·W,) for every keyframe pixel, its match in the last frame (upstream ``idx_f2k``).
         self.idx_f2k: np.ndarray | None = None
+        # With the fast kernels, matching and fusion keep the keyframe's descriptors and fused
+        # pointmap on the device between frames (mslam_fast.resident); same results.
+        res = kernels.resident
+        self._match_fn = res.ResidentMatcher().match if res else kernels.matching.match
+        self._fuse_fn = (
+            res.ResidentFusion().update_pointmap if res else kernels.fusion.update_pointmap
+        )
 
     def track(
         self,
@@ -175,7 +182,7 @@ class Tracker:
         """Matching of the frame into the keyframe (paper §3.2), on the tracking grid."""
         X_ji = p.X_ji if stride == 1 else np.where(grid[..., None], p.X_ji, 0.0)
         with self.stats.timer("matching"):
-            idx_f2k, valid_match_k = self.kernels.matching.match(
+            idx_f2k, valid_match_k = self._match_fn(
                 p.X_ii, X_ji, p.D_ii, p.D_ji, self.idx_f2k, self.matching_cfg
             )
         self.idx_f2k = np.asarray(idx_f2k, np.int64)
@@ -185,8 +192,6 @@ class Tracker:
         """Fuse the frame's points, moved into the keyframe, into its pointmap (paper Eq. 8)."""
         with self.stats.timer("fusion"):
             X_kk = sim3.act(T_CkCf, flat(p.X_ji))
-            state = self.kernels.fusion.update_pointmap(
-                kf.state, X_kk, flat(p.C_ji), self.fusion_cfg
-            )
+            state = self._fuse_fn(kf.state, X_kk, flat(p.C_ji), self.fusion_cfg)
             with self.lock:
                 kf.state = state
