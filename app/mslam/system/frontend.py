@@ -3,7 +3,8 @@
 ``SlamSystem.process(frame)`` is upstream's main-loop body for one frame, single process, read
 top-down in :meth:`SlamSystem.step`:
 
-* **INIT** — ``prior.mono(frame)`` gives the first keyframe (pose = identity); mode → TRACKING.
+* **INIT** — ``prior.mono(frame)`` gives the first keyframe (pose = identity, or the anchor of
+  a new map); mode → TRACKING.
   A prior with ``needs_parallax`` (the two-view prior: one image has no depth) instead keeps
   the first frame as a candidate and fixes it as keyframe 0, with ``X_ii`` of
   ``prior.pair(candidate, frame)``, at the first frame whose pairs with it are not degenerate
@@ -15,11 +16,12 @@ top-down in :meth:`SlamSystem.step`:
   last keyframe is degenerate (a prior that reports ``last_status``, e.g. too little parallax
   just after a new keyframe), the frame is tracked against the keyframe before it instead, and
   never becomes a keyframe itself; if that fails too and the pair with the last keyframe lacked
-  parallax, the camera is near that keyframe, and the frame gets the pair's rotation with zero
-  translation (``ROTATION``, nothing fused). When the prior reports the pair with the last
+  parallax, the camera is near that keyframe, and the frame gets a rotation with zero
+  translation (``ROTATION``, nothing fused, no keyframe asked for; :mod:`mslam.system.parallax`
+  says when a pair lacks parallax). When the prior reports the pair with the last
   keyframe as having too few correspondences (``last_status == "few_inliers"``: the frame is
-  too far from it), the last tracked frame is made a keyframe first (late) and the frame
-  tracked against it. A new keyframe runs the backend (:class:`~mslam.system.global_opt.Backend`)
+  too far from it), or the rotation of a frame without parallax cannot be solved, the last
+  tracked frame is made a keyframe first (late) and the frame tracked against it. A new keyframe runs the backend (:class:`~mslam.system.global_opt.Backend`)
   **synchronously** (upstream's ``single_thread`` mode), or queues it for a background thread
   with ``single_thread: False`` (``mslam.system.worker``).
 * **RELOC** — :func:`mslam.system.reloc.relocalise` on the frame; on success mode → TRACKING.
