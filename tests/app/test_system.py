@@ -126,8 +126,9 @@ def test_jump_relocalises_and_finishes():
 
 def test_tracking_that_never_recovers_ends_cleanly():
     # The strictest tracking threshold (every pixel must match): every frame after the first is
-    # lost.
-    src, system, _meta = _run(LOOP, overrides=("tracking.min_match_frac=1.0",))
+    # lost. No new map (mslam.system.recovery): the run stays lost, as upstream.
+    no_new_map = ("recovery.max_lost_frames=0", "recovery.max_refusals=0")
+    src, system, _meta = _run(LOOP, overrides=("tracking.min_match_frac=1.0", *no_new_map))
     assert system.stats.frames == len(src.sequence)
     assert len(system.keyframes) >= 1
     assert system.stats.lost_frames + system.stats.relocalisations == len(src.sequence) - 1

@@ -11,8 +11,9 @@ Modules, in reading order:
 
 * :mod:`~mslam.system.sources` — SOURCE → frames, calibration, prior (checked up front);
 * :mod:`~mslam.system.run` — :func:`run_slam`, the frame loop;
-* :mod:`~mslam.system.frontend` — :class:`SlamSystem`: the mode machine, keyframe decisions,
-  the parallax wait of the two-view prior;
+* :mod:`~mslam.system.frontend` — :class:`SlamSystem`: the mode machine, keyframe decisions;
+  :mod:`~mslam.system.parallax` — its steps for the two-view prior (the parallax wait, pairs
+  without parallax posed by rotation);
 * :mod:`~mslam.system.tracker` — :class:`~mslam.system.tracker.Tracker`: matching, the pose
   solve, fusion and the new-keyframe test for one frame;
 * :mod:`~mslam.system.global_opt` — :class:`~mslam.system.global_opt.Backend`: the map
@@ -21,7 +22,9 @@ Modules, in reading order:
   the keyframe store, edge construction, the factor graph;
 * :mod:`~mslam.system.reloc` — relocalisation; :mod:`~mslam.system.worker` — the backend in a
   background thread (``single_thread: False``);
-* :mod:`~mslam.system.health` — how far a run can be trusted;
+* :mod:`~mslam.system.recovery` — a new map when relocalisation keeps failing;
+* :mod:`~mslam.system.divergence`, :mod:`~mslam.system.health` — how far a run can be trusted
+  (refused poses, undone solves, a map that runs away; the final checks);
 * :mod:`~mslam.system.outputs` — trajectory, keyframes, PLY, summary, plot.
 
 The call path of one frame, loop to kernel::

@@ -14,12 +14,19 @@ never against a number of metres:
 the frontend then treats the frame as lost (relocalisation follows), and the monitor keeps a
 record of every refusal (``events``). :func:`guard_backend` decides whether a global solve is
 kept: a solve whose final cost exceeds its first, or that moves a keyframe by more than
-``jump_factor`` times the keyframes' median spacing, is undone. :func:`trajectory_warnings`
-checks the final per-frame trajectory the same way (non-finite, jumps, a spread far beyond the
-path's steps), for the summary's ``warnings``.
+``jump_factor`` times the keyframes' median spacing, is undone. :func:`map_spread` watches the
+current map's keyframes after every backend step, for a map that spreads without bound while
+each step looks plausible (a slow runaway): the keyframes' Sim(3) scale moving steadily one way
+over the last ``spread_window`` keyframes (net log change at least ``min_drift_trend`` of the
+summed absolute log changes) by a factor beyond ``max_scale_drift``, or the recent keyframe spacing grown beyond ``max_spacing_growth`` times the map's first
+spacings. It is reported once per map (an event and a warning: ``plausible`` is false).
+:func:`trajectory_warnings` checks the final per-frame trajectory the same way (non-finite,
+jumps, a spread far beyond the path's steps), for the summary's ``warnings``. Each event has a
+``kind``: ``"pose"`` (a refused frame pose), ``"solve"`` (an undone solve), ``"spread"``.
 
 Public names, in reading order:
-    DivergenceConfig, DivergenceMonitor, guard_backend, trajectory_warnings, divergence_report
+    DivergenceConfig, DivergenceMonitor, guard_backend, map_spread, trajectory_warnings,
+    divergence_report
 """
 
 from __future__ import annotations
@@ -37,6 +44,7 @@ __all__ = [
     "DivergenceMonitor",
     "divergence_report",
     "guard_backend",
+    "map_spread",
     "trajectory_warnings",
 ]
 
@@ -60,6 +68,12 @@ class DivergenceConfig:
             beyond this factor is reported.
         warn_refusals: refused frames that make a warning (fewer are listed in the events
             only: a single refused frame followed by a relocalisation is a recovered run).
+        spread_window: consecutive keyframes whose scale changes :func:`map_spread` reads.
+        max_scale_drift: their scale moving by more than this factor in all, ...
+        min_drift_trend: ... with the net change at least this share of the summed absolute
+            changes (1: every step the same way), is a drift.
+        max_spacing_growth: recent median keyframe spacing beyond this many times the map's
+            first median spacing is a spreading map.
     """
 
     window: int = 20
@@ -70,6 +84,10 @@ class DivergenceConfig:
     max_backend_move: float = 20.0
     max_final_scale_ratio: float = 1e3
     warn_refusals: int = 3
+    spread_window: int = 8
+    max_scale_drift: float = 2.0
+    min_drift_trend: float = 0.8
+    max_spacing_growth: float = 25.0
 
 
 @dataclass
@@ -89,11 +107,35 @@ class DivergenceMonitor:
         self._lo = np.full(3, np.inf)
         self._hi = np.full(3, -np.inf)
         self._last_scale: float | None = None
+        self._spread_reported = False
 
     def reset(self) -> None:
         """Forget recent motion (after a relocalisation the path restarts elsewhere)."""
         self._centres.clear()
         self._last_scale = None
+
+    def new_map(self) -> None:
+        """Forget recent motion and the trajectory's extent (``mslam.system.recovery``); the
+        spread watch may fire again, for the new map."""
+        self.reset()
+        self._lo, self._hi = np.full(3, np.inf), np.full(3, -np.inf)
+        self._spread_reported = False
+
+    def refused_frames(self) -> list[int]:
+        """Frame index of every refused frame pose so far, in order."""
+        return [int(e["frame"]) for e in self.events if e["kind"] == "pose"]
+
+    def check_map(self, frame: int, T_kf: FloatArray) -> bool:
+        """:func:`map_spread` on the current map's keyframe poses ``T_kf`` (K, 8) after the
+        backend step of the keyframe made at ``frame``; records the first spread of each map.
+        Returns whether the map looks bounded."""
+        why = map_spread(T_kf, self.cfg)
+        if why is None:
+            return True
+        if not self._spread_reported:
+            self._spread_reported = True
+            self.events.append({"frame": int(frame), "kind": "spread", "reason": why})
+        return False
 
     def reason(self, T_WC: FloatArray) -> str | None:
         """Why pose ``T_WC`` (8,) is implausible given recent motion, or None if it is not."""
@@ -123,7 +165,7 @@ class DivergenceMonitor:
         """Accept (True, and remember) or refuse (False, and record an event) a frame pose."""
         why = self.reason(T_WC)
         if why is not None:
-            self.events.append({"frame": int(frame), "reason": why})
+            self.events.append({"frame": int(frame), "kind": "pose", "reason": why})
             return False
         T = np.asarray(T_WC, dtype=np.float64)
         self._centres.append(T[:3].copy())
@@ -135,8 +177,9 @@ class DivergenceMonitor:
         """One sentence per kind of event (at least ``warn_refusals`` refused frame poses;
         any undone solve), or none."""
         out = []
-        frames = [e for e in self.events if e["frame"] >= 0]
-        solves = [e for e in self.events if e["frame"] < 0]
+        frames = [e for e in self.events if e["kind"] == "pose"]
+        solves = [e for e in self.events if e["kind"] == "solve"]
+        spreads = [e for e in self.events if e["kind"] == "spread"]
         if len(frames) >= self.cfg.warn_refusals:
             out.append(
                 f"{len(frames)} implausible frame pose(s) refused while running (first at "
@@ -145,6 +188,11 @@ class DivergenceMonitor:
             )
         if solves:
             out.append(f"{len(solves)} global solve(s) undone (first: {solves[0]['reason']})")
+        out += [
+            f"the map runs away (at frame {e['frame']}): {e['reason']}; positions "
+            "and scale after it are not trustworthy"
+            for e in spreads
+        ]
         return out
 
 
@@ -177,6 +225,33 @@ def guard_backend(
         move = float(np.max(np.linalg.norm(T_new[:, :3] - T_old[:, :3], axis=1)))
         if move > cfg.max_backend_move * spacing:
             return f"the solve moved a keyframe by {move / spacing:.3g} keyframe spacings"
+    return None
+
+
+def map_spread(T_kf: FloatArray, cfg: DivergenceConfig = DivergenceConfig()) -> str | None:
+    """Why keyframe poses ``T_kf`` (K, 8) of one map, in creation order, look like a map that
+    spreads without bound, or None (module docstring: a steady Sim(3) scale drift over the
+    last ``spread_window`` keyframes, or keyframe spacing grown ``max_spacing_growth``-fold)."""
+    T = np.asarray(T_kf, dtype=np.float64).reshape(-1, 8)
+    w = cfg.spread_window
+    if len(T) <= w or not np.all(np.isfinite(T)) or not np.all(T[:, 7] > 0):
+        return None
+    d = np.diff(np.log(T[-w - 1 :, 7]))
+    trend = abs(float(d.sum())) / max(float(np.abs(d).sum()), 1e-300)  # 1: every step one way
+    drift = float(np.exp(abs(d.sum())))
+    if trend >= cfg.min_drift_trend and drift > cfg.max_scale_drift:
+        way = "grew" if d.sum() > 0 else "shrank"
+        return (
+            f"the keyframes' Sim(3) scale {way} by a factor {drift:.3g} over the last {w} "
+            f"keyframes, steadily (net change {100 * trend:.0f} % of the total change)"
+        )
+    steps = np.linalg.norm(np.diff(T[:, :3], axis=0), axis=1)
+    first, recent = float(np.median(steps[:w])), float(np.median(steps[-w:]))
+    if first > 0 and recent > cfg.max_spacing_growth * first:
+        return (
+            f"the recent keyframe spacing is {recent / first:.3g} times the map's first "
+            "(the map grows far beyond the recent motion)"
+        )
     return None
 
 

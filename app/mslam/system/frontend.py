@@ -3,7 +3,8 @@
 ``SlamSystem.process(frame)`` is upstream's main-loop body for one frame, single process, read
 top-down in :meth:`SlamSystem.step`:
 
-* **INIT** — ``prior.mono(frame)`` gives the first keyframe (pose = identity); mode → TRACKING.
+* **INIT** — ``prior.mono(frame)`` gives the first keyframe (pose = identity, or the anchor of
+  a new map); mode → TRACKING.
   A prior with ``needs_parallax`` (the two-view prior: one image has no depth) instead keeps
   the first frame as a candidate and fixes it as keyframe 0, with ``X_ii`` of
   ``prior.pair(candidate, frame)``, at the first frame whose pairs with it are not degenerate
@@ -15,14 +16,17 @@ top-down in :meth:`SlamSystem.step`:
   last keyframe is degenerate (a prior that reports ``last_status``, e.g. too little parallax
   just after a new keyframe), the frame is tracked against the keyframe before it instead, and
   never becomes a keyframe itself; if that fails too and the pair with the last keyframe lacked
-  parallax, the camera is near that keyframe, and the frame gets the pair's rotation with zero
-  translation (``ROTATION``, nothing fused). When the prior reports the pair with the last
+  parallax, the camera is near that keyframe, and the frame gets a rotation with zero
+  translation (``ROTATION``, nothing fused, no keyframe asked for; :mod:`mslam.system.parallax`
+  says when a pair lacks parallax). When the prior reports the pair with the last
   keyframe as having too few correspondences (``last_status == "few_inliers"``: the frame is
-  too far from it), the last tracked frame is made a keyframe first (late) and the frame
-  tracked against it. A new keyframe runs the backend (:class:`~mslam.system.global_opt.Backend`)
+  too far from it), or the rotation of a frame without parallax cannot be solved, the last
+  tracked frame is made a keyframe first (late) and the frame tracked against it. A new keyframe runs the backend (:class:`~mslam.system.global_opt.Backend`)
   **synchronously** (upstream's ``single_thread`` mode), or queues it for a background thread
   with ``single_thread: False`` (``mslam.system.worker``).
 * **RELOC** — :func:`mslam.system.reloc.relocalise` on the frame; on success mode → TRACKING.
+  When relocalisation keeps failing or poses keep being refused, a new map starts (mode →
+  INIT, anchored at the last posed frame; :mod:`mslam.system.recovery`).
 
 Every frame's pose is stored *relative to a keyframe* (``T_CkCf``) and composed with the final
 keyframe poses at the end (``frame_poses``), so the per-frame trajectory benefits from the
@@ -33,8 +37,6 @@ Public names, in reading order:
 """
 
 from __future__ import annotations
-
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -47,48 +49,20 @@ from mslam.system.edges import KnownPairs
 from mslam.system.global_opt import Backend
 from mslam.system.graph import FactorGraph
 from mslam.system.keyframes import KeyframeStore
+from mslam.system.parallax import ParallaxSteps, TrackedFrame
+from mslam.system.recovery import Recovery, RecoveryConfig
 from mslam.system.reloc import relocalise
 from mslam.system.retrieval_features import RetrievalIndex
 from mslam.system.state import FramePose, FrameStatus, Mode, RunStats
 from mslam.system.tracker import Tracker
 from mslam.system.worker import BackendWorker, SharedPrior
-from mslam_ref import sim3, so3
+from mslam_ref import sim3
 from mslam_ref.conventions import FloatArray
 
 __all__ = ["SlamSystem"]
 
 
-def prior_status(prior: Prior) -> str:
-    """The prior's verdict on its last ``pair`` ("ok" for priors that report none)."""
-    return str(getattr(prior, "last_status", "ok"))
-
-
-@dataclass(frozen=True)
-class _KeyframePair:
-    """The keyframe a frame is tracked against and the prior's decode of the pair.
-
-    ``status`` is the prior's verdict on the pair with the *last* keyframe; ``fallback``: the
-    pair is with the keyframe before it; ``R_ji``: (3, 3) the rotation to pose the frame by
-    alone (no parallax and no fallback), else None.
-    """
-
-    kf_idx: int
-    p: PairPrediction
-    fallback: bool
-    status: str
-    R_ji: FloatArray | None
-
-
-@dataclass(frozen=True)
-class _Tracked:
-    """The last tracked frame, kept in case it must become a keyframe late."""
-
-    frame: Frame
-    T_WC: FloatArray
-    p: PairPrediction
-
-
-class SlamSystem:
+class SlamSystem(ParallaxSteps):
     """The SLAM system of one run: the frontend's state machine over the map (``backend``).
 
     Args:
@@ -112,11 +86,13 @@ class SlamSystem:
         self.tracker = Tracker(cfg, kernels, self.K, self.stats, self.backend.lock)
         self.worker = None if cfg.single_thread else BackendWorker(self.backend.step)
         self.mode = Mode.INIT
+        self.recovery = Recovery(RecoveryConfig.from_sections(cfg.sections))
+        self.anchor = sim3.identity()  # the pose of the current map's first keyframe
         self.T_WC_last = sim3.identity()
         self.poses: list[FramePose] = []
         self.init_candidate: Frame | None = None
         self.init_pending: list[Frame] = []
-        self.last_tracked: _Tracked | None = None
+        self.last_tracked: TrackedFrame | None = None
         self.tracking_pair: tuple[int, int, PairPrediction] | None = None
         from threadpoolctl import ThreadpoolController
 
@@ -148,25 +124,44 @@ class SlamSystem:
             return self.step(frame)
 
     def step(self, frame: Frame) -> FrameStatus:
-        """One frame through the mode machine (module docstring)."""
+        """One frame through the mode machine (module docstring), then the recovery test."""
         self.stats.frames += 1
         if self.mode == Mode.INIT and getattr(self.prior, "needs_parallax", False):
-            return self.init_with_parallax(frame)
-        if self.mode == Mode.INIT:
-            return self.init_mono(frame)
-        if self.mode == Mode.RELOC:
-            return self.relocalise(frame)
-        status = self.track(frame)
-        if status == FrameStatus.LOST:
-            self.lose_tracking()
+            status = self.init_with_parallax(frame)
+        elif self.mode == Mode.INIT:
+            status = self.init_mono(frame)
+        elif self.mode == Mode.RELOC:
+            status = self.relocalise(frame)
+        else:
+            status = self.track(frame)
+            if status == FrameStatus.LOST:
+                self.lose_tracking()
+        refused = self.divergence.refused_frames()
+        why = self.recovery.after_frame(int(frame.index), status, refused)
+        if why is not None and self.mode != Mode.INIT:
+            self.start_new_map(frame, why)
         return status
+
+    def start_new_map(self, frame: Frame, reason: str) -> None:
+        """Give the current map up (``mslam.system.recovery``): the next frames initialise a
+        new map whose first keyframe takes the final pose of the last posed frame."""
+        self.wait_for_backend()
+        _, _, T = self.frame_poses()
+        if len(T):
+            self.anchor = T[-1].copy()
+        self.backend.start_map()
+        self.recovery.new_map(int(frame.index), len(self.keyframes), reason)
+        self.divergence.new_map()
+        self.tracker.idx_f2k, self.last_tracked = None, None
+        self.init_candidate, self.init_pending = None, []
+        self.mode = Mode.INIT
 
     def init_mono(self, frame: Frame) -> FrameStatus:
         """INIT: the first frame's mono pointmap is keyframe 0 at the origin."""
         with self.stats.timer("prior"):
             X, C = self.prior.mono(frame)
             p = self.prior.pair(frame, frame)
-        k = self.backend.add_keyframe(frame, sim3.identity(), X, C, p.D_ii, p.Q_ii)
+        k = self.backend.add_keyframe(frame, self.anchor, X, C, p.D_ii, p.Q_ii)
         self.retrieval.update(self.keyframes[k].features)
         self.T_WC_last = self.keyframes[k].T_WC.copy()
         self.record(frame, k, None, FrameStatus.KEYFRAME)
@@ -211,8 +206,13 @@ class SlamSystem:
         if pair.status == "few_inliers" and not pair.fallback and allow_keyframe:
             if self.promote_last_tracked():
                 pair = self.keyframe_pair(frame)
-        if pair.R_ji is not None:
-            return self.track_rotation_only(frame, pair.kf_idx, pair.R_ji)
+        if pair.status == "parallax" and not pair.fallback:
+            rotated = self.track_rotation_only(frame, pair)
+            if rotated is None and allow_keyframe and self.promote_last_tracked():
+                return self.track(frame, allow_keyframe=False)  # against the promoted frame
+            if rotated is None:
+                self.record(frame, -1, None, FrameStatus.LOST)
+            return FrameStatus.LOST if rotated is None else rotated
         kf_idx, p, fallback = pair.kf_idx, pair.p, pair.fallback
         kf = self.keyframes[kf_idx]
         self.tracking_pair = (int(frame.index), int(kf.frame.index), p)
@@ -226,7 +226,7 @@ class SlamSystem:
         if fallback:
             self.tracker.idx_f2k = None  # the matches belong to the older keyframe
         new_kf = (result.wants_keyframe or force_keyframe) and allow_keyframe and not fallback
-        self.last_tracked = _Tracked(frame, result.T_WC, p)
+        self.last_tracked = TrackedFrame(frame, result.T_WC, p)
         if not new_kf:
             self.record(frame, kf_idx, result.T_CkCf, FrameStatus.TRACKED)
             return FrameStatus.TRACKED
@@ -240,97 +240,6 @@ class SlamSystem:
         self.record(frame, k, None, FrameStatus.KEYFRAME)
         self.keyframe_added(k)
         return k
-
-    # -- priors that need parallax (the two-view prior) ----------------------------------------
-    def init_with_parallax(self, frame: Frame) -> FrameStatus:
-        """INIT for priors without single-image depth: wait for a non-degenerate first pair.
-
-        The first frame is the candidate; later frames wait in ``init_pending``. At the first
-        frame whose pairs with the candidate are usable in both directions, the candidate
-        becomes keyframe 0 (``X_ii`` of ``pair(candidate, frame)``), the frame is tracked and
-        made keyframe 1, and the waiting frames are tracked against these two keyframes.
-        """
-        cand = self.init_candidate
-        if cand is None:
-            self.init_candidate, self.init_pending = frame, []
-            return FrameStatus.WAITING
-        with self.stats.timer("prior"):
-            self.prior.pair(frame, cand)  # the direction tracking uses must be usable too
-            status = prior_status(self.prior)
-            p = self.prior.pair(cand, frame) if status == "ok" else None
-        if p is not None:
-            status = prior_status(self.prior)
-        if p is None or status != "ok":
-            if status == "few_inliers":  # too far apart to match: start again from here
-                for f in [cand, *self.init_pending]:
-                    self.stats.lost_frames += 1
-                    self.record(f, -1, None, FrameStatus.LOST)
-                self.init_candidate, self.init_pending = frame, []
-            else:
-                self.init_pending.append(frame)
-            return FrameStatus.WAITING
-        k = self.backend.add_keyframe(cand, sim3.identity(), p.X_ii, p.C_ii, p.D_ii, p.Q_ii)
-        self.retrieval.update(self.keyframes[k].features)
-        self.T_WC_last = self.keyframes[k].T_WC.copy()
-        self.record(cand, k, None, FrameStatus.KEYFRAME)
-        self.mode = Mode.TRACKING
-        result = self.track(frame, force_keyframe=True)
-        if result == FrameStatus.LOST:
-            self.lose_tracking()
-        else:
-            T_last = self.T_WC_last.copy()
-            for f in self.init_pending:
-                if self.track(f, allow_keyframe=False) == FrameStatus.LOST:
-                    self.stats.lost_frames += 1
-            self.T_WC_last, self.tracker.idx_f2k = T_last, None
-        self.init_candidate, self.init_pending = None, []
-        return result
-
-    def keyframe_pair(self, frame: Frame) -> _KeyframePair:
-        """The pair with the last keyframe, or with the one before it when the prior flags the
-        first pair degenerate (``last_status``); with the rotation to pose the frame by when
-        the pair with the last keyframe lacks parallax and no fallback worked."""
-        kf_idx = len(self.keyframes) - 1
-        with self.stats.timer("prior"):
-            p = self.prior.pair(frame, self.keyframes[kf_idx].frame)
-        status = prior_status(self.prior)
-        if status in ("ok", "same"):
-            return _KeyframePair(kf_idx, p, False, status, None)
-        R_ji = getattr(self.prior, "last_R_ji", None) if status == "parallax" else None
-        if kf_idx > 0:
-            with self.stats.timer("prior"):
-                p_prev = self.prior.pair(frame, self.keyframes[kf_idx - 1].frame)
-            if prior_status(self.prior) == "ok":
-                return _KeyframePair(kf_idx - 1, p_prev, True, status, None)
-        return _KeyframePair(kf_idx, p, False, status, R_ji)
-
-    def track_rotation_only(self, frame: Frame, kf_idx: int, R_ji: FloatArray) -> FrameStatus:
-        """Pose a frame without parallax to its keyframe: the pair's rotation, no translation.
-
-        With parallax below the prior's threshold the camera centre is within a small fraction
-        of the scene depth from the keyframe's, so ``T_CkCf = (0, R_ji, 1)`` is off by at most
-        that baseline. Nothing is fused and the frame never becomes a keyframe.
-        """
-        T_CkCf = np.concatenate([np.zeros(3), so3.from_matrix(R_ji), [1.0]])
-        self.T_WC_last = sim3.mul(self.keyframes[kf_idx].T_WC, T_CkCf)
-        self.record(frame, kf_idx, T_CkCf, FrameStatus.ROTATION)
-        return FrameStatus.ROTATION
-
-    def promote_last_tracked(self) -> bool:
-        """Make the last tracked frame a keyframe (late), when the current frame is already
-        too far from the last keyframe for the prior (``last_status == "few_inliers"``).
-
-        A prior whose correspondences break down under large motion (the two-view prior's
-        optical flow) can lose a keyframe before the match-fraction test asks for a new one;
-        the previous frame, tracked with its own pointmap ``X_ii`` and pose, is then the
-        keyframe that should have been made. Returns whether one was added.
-        """
-        last, self.last_tracked = self.last_tracked, None
-        if last is None or last.frame.index == self.keyframes.last().frame.index:
-            return False
-        self.poses = [q for q in self.poses if q.index != last.frame.index]
-        self.make_keyframe(last.frame, last.T_WC, last.p)
-        return True
 
     # -- the backend -----------------------------------------------------------------------
     def last_pair(self) -> KnownPairs:

@@ -14,6 +14,10 @@ after a relocalisation), made by the frontend or, with ``single_thread: False``,
    set's ``backend.solve``, on the residuals of a pixel grid (``local_opt.pixels_per_edge``,
    every pixel by default); the poses are written back.
 
+All of it happens inside the current map (``map_start`` on, ``mslam.system.recovery``): the
+keyframes of earlier maps get no new edge and keep their poses. After each step the current
+map's keyframes go through the divergence watch's spread test (``DivergenceMonitor.check_map``).
+
 Public names, in reading order:
     Backend, residual_grid
 """
@@ -92,6 +96,12 @@ class Backend:
         self.history: list[dict[str, Any]] = []
         #: Every loop-closure verdict (``i``, ``j``, ``accepted``, the fit's statistics).
         self.loop_checks: list[dict[str, Any]] = []
+        #: The first keyframe of the current map (``mslam.system.recovery``).
+        self.map_start = 0
+
+    def start_map(self) -> None:
+        """The next keyframe starts a new map: edges, solves and relocalisation stay in it."""
+        self.map_start = len(self.keyframes)
 
     def add_keyframe(
         self,
@@ -147,6 +157,8 @@ class Backend:
             self.add_keyframe_edges(k, known)
         with self.stats.timer("backend"):
             self.solve()
+        self.divergence.check_map(int(self.keyframes[k].frame.index),
+                                  self.keyframes.poses()[self.map_start :])  # fmt: skip
 
     def add_keyframe_edges(self, k: int, known: KnownPairs | None = None) -> int:
         """Graph construction for new keyframe ``k``; returns the number of edges added.
@@ -158,7 +170,7 @@ class Backend:
         candidates += self.retrieval.update(kf.features)
         seen: list[int] = []
         for c in candidates:
-            if c != k and c not in seen and 0 <= c < len(self.keyframes):
+            if c != k and c not in seen and self.map_start <= c < len(self.keyframes):
                 seen.append(int(c))
         if not seen:
             return 0
@@ -201,7 +213,7 @@ class Backend:
             X, C = self.keyframes.pointmaps(fusion, self.K)
         stride = self.cfg.backend_pixel_stride(X.shape[1:3])
         pixels = None if stride == 1 else np.flatnonzero(residual_grid(X.shape[1:3], stride))
-        blocks = self.graph.two_way_blocks(pixels)
+        blocks = self.graph.two_way_blocks(pixels, first=self.map_start)
         if len(blocks.ii) == 0:
             return None
         graph = backend.pose_graph(
@@ -211,7 +223,9 @@ class Backend:
         T_new = np.asarray(T_new, dtype=np.float64)
         why = guard_backend(T_WC, T_new, tuple(info.costs), self.divergence.cfg)
         if why is not None:  # keep the poses the solve started from (mslam.system.divergence)
-            self.divergence.events.append({"frame": -1, "reason": f"backend undone: {why}"})
+            self.divergence.events.append(
+                {"frame": -1, "kind": "solve", "reason": f"backend undone: {why}"}
+            )
             T_new = T_WC
         with self.lock:
             self.keyframes.set_poses(T_new, np.arange(len(T_new)))

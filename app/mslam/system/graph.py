@@ -73,8 +73,9 @@ class FactorGraph:
         """Number of stored edges of one kind."""
         return sum(e.kind == kind for e in self.edges)
 
-    def two_way_blocks(self, pixels: IntArray | None = None) -> SimpleNamespace:
-        """Directed residual blocks of all edges (upstream ``prep_two_way_edges``, docs/upstream.md §7.4).
+    def two_way_blocks(self, pixels: IntArray | None = None, first: int = 0) -> SimpleNamespace:
+        """Directed residual blocks of all edges (upstream ``prep_two_way_edges``, docs/upstream.md §7.4)
+        between keyframes ``first`` and later (the current map, ``mslam.system.recovery``).
 
         Edge (i, j) gives block (i ← j) with ``idx_i2j, valid_match_j, Q_j`` (residuals over
         the pixels of j, reference pixel in i) and block (j ← i) with ``idx_j2i,
@@ -87,15 +88,16 @@ class FactorGraph:
             namespace with ii (D,), jj (D,) int64, idx (D, N) int64, valid (D, N) bool,
             Q (D, N) float64, D = 2E.
         """
-        if not self.edges:
+        edges = [e for e in self.edges if min(e.i, e.j) >= first]
+        if not edges:
             z = np.zeros(0, dtype=np.int64)
             empty = (np.zeros((0, 0), np.int64), np.zeros((0, 0), bool), np.zeros((0, 0)))
             return SimpleNamespace(ii=z, jj=z, idx=empty[0], valid=empty[1], Q=empty[2])
         cols = slice(None) if pixels is None else pixels
-        stack = lambda name: np.stack([getattr(e, name)[cols] for e in self.edges])
+        stack = lambda name: np.stack([getattr(e, name)[cols] for e in edges])
         ii, jj, idx, valid, Q = backend.directed_blocks(
-            [e.i for e in self.edges],
-            [e.j for e in self.edges],
+            [e.i for e in edges],
+            [e.j for e in edges],
             stack("idx_i2j"),
             stack("idx_j2i"),
             stack("valid_match_j"),

@@ -184,9 +184,10 @@ def summary_dict(system: SlamSystem, meta: dict[str, Any], ev: dict[str, Any]) -
     out.update(
         health_report(system.poses, frames, out["frames_with_pose"], out["prior"], ev.get("ate"))
     )
-    out.update(
-        divergence_report(system.divergence, system.backend.loop_checks, T_WC, out["warnings"])
-    )
+    maps = system.recovery.report(system.poses, len(system.keyframes))  # mslam.system.recovery
+    out["maps"] = maps["maps"]
+    warnings = [*out["warnings"], *maps["warnings"]]
+    out.update(divergence_report(system.divergence, system.backend.loop_checks, T_WC, warnings))
     if "ate" in ev:
         out["ate"] = ev["ate"]
         out["ate_rmse"] = ev["ate"]["ate_rmse"]

@@ -52,7 +52,8 @@ def relocalise(frame: Frame, prior: Prior, backend: Backend, cfg: RelocConfig) -
         X, C = prior.mono(frame)
         p = prior.pair(frame, frame)
     features = backend.retrieval.features(p.D_ii, p.Q_ii)
-    candidates = backend.retrieval.query(features)
+    # Keyframes of the current map only (earlier maps are not joined, mslam.system.recovery).
+    candidates = [c for c in backend.retrieval.query(features) if c >= backend.map_start]
     if not candidates:
         return False
     n = backend.add_keyframe(frame, sim3.identity(), X, C, p.D_ii, p.Q_ii)

@@ -120,6 +120,7 @@ class Tracker:
         p: PairPrediction,
         T_WC_last: FloatArray,
         plausible: Callable[[FloatArray], bool] | None = None,
+        fuse: bool = True,
     ) -> TrackResult | None:
         """Track one frame against ``kf`` given the decode ``p = prior.pair(frame, kf)``.
 
@@ -131,6 +132,8 @@ class Tracker:
             T_WC_last: (8,) the last frame's world pose (the constant-position guess).
             plausible: ``T_WC -> bool``, the divergence watch; a refused pose is not fused
                 and the frame is lost (``mslam.system.divergence``).
+            fuse: False leaves the keyframe's pointmap as it is (a pose for its rotation only,
+                ``mslam.system.parallax``).
 
         Returns:
             the pose and the keyframe test's answer, or None when the frame is lost.
@@ -168,7 +171,8 @@ class Tracker:
         T_WC = sim3.mul(kf.T_WC, T_CkCf)
         if plausible is not None and not plausible(T_WC):
             return None
-        self._fuse(kf, p, T_CkCf)
+        if fuse:
+            self._fuse(kf, p, T_CkCf)
         cell = self.cfg.keyframe_cell_stride((H, W))
         n_cells = len(range(cell // 2, H, cell)) * len(range(cell // 2, W, cell))
         wants = tracking.needs_new_keyframe(

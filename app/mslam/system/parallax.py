@@ -1,0 +1,216 @@
+"""Paper §3.3–3.4 (docs/upstream.md §1.4) — the frontend's steps for priors that need parallax.
+
+The two-view prior (``mslam.priors.twoview``) has no depth from one image, so the frontend
+(:class:`~mslam.system.frontend.SlamSystem`, which inherits :class:`ParallaxSteps`) must treat
+pairs without parallax apart:
+
+* INIT waits for a first pair with parallax (:meth:`ParallaxSteps.init_with_parallax`);
+* a pair is *without parallax* when the prior says so (``last_status == "parallax"``) or when
+  its median triangulation angle (``last_info["angle_deg"]``) is below
+  ``tracking.min_pair_angle_deg`` (0.12° by default: at 160 px across a ~60° view a pixel
+  subtends ~0.4°, so a third of a pixel of parallax, below what optical flow resolves; the
+  depths of such a pair are noise, and so are its pointmaps' rays when the translation is);
+* such a frame is tracked against the keyframe before the last one when that pair has
+  parallax (never becoming a keyframe), else posed by rotation alone
+  (:meth:`ParallaxSteps.track_rotation_only`: the prior's rotation, or the rotation of a
+  tracking solve that fuses nothing);
+* a rotation-only frame never asks for a keyframe: the new-keyframe test reads the pair's
+  matches, which a pair without parallax does not give. Overlap is lost when the prior can no
+  longer match the frame to the keyframe (``last_status == "few_inliers"``); the last frame
+  tracked or posed by rotation then becomes the keyframe
+  (:meth:`ParallaxSteps.promote_last_tracked`). Under a pure rotation this makes a keyframe per
+  loss of overlap, not per frame (``synthetic:rotation:60``: numbers in docs/reliability.md).
+
+Public names, in reading order:
+    prior_status, KeyframePair, TrackedFrame, ParallaxSteps
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from mslam.config import SlamConfig
+from mslam.datasets.frame import Frame
+from mslam.priors.base import PairPrediction, Prior
+from mslam.system.global_opt import Backend
+from mslam.system.state import FramePose, FrameStatus, Mode, RunStats
+from mslam.system.tracker import Tracker
+from mslam_ref import sim3, so3
+from mslam_ref.conventions import FloatArray
+
+__all__ = ["KeyframePair", "ParallaxSteps", "TrackedFrame", "prior_status"]
+
+#: Default of ``tracking.min_pair_angle_deg`` (module docstring).
+MIN_PAIR_ANGLE_DEG = 0.12
+
+
+def prior_status(prior: Prior) -> str:
+    """The prior's verdict on its last ``pair`` ("ok" for priors that report none)."""
+    return str(getattr(prior, "last_status", "ok"))
+
+
+@dataclass(frozen=True)
+class KeyframePair:
+    """The keyframe a frame is tracked against and the prior's decode of the pair.
+
+    ``status`` is the prior's verdict on the pair with the *last* keyframe; ``fallback``: the
+    pair is with the keyframe before it; ``R_ji``: (3, 3) the rotation to pose the frame by
+    alone (no parallax and no fallback), else None.
+    """
+
+    kf_idx: int
+    p: PairPrediction
+    fallback: bool
+    status: str
+    R_ji: FloatArray | None
+
+
+@dataclass(frozen=True)
+class TrackedFrame:
+    """The last tracked frame, kept in case it must become a keyframe late."""
+
+    frame: Frame
+    T_WC: FloatArray
+    p: PairPrediction
+
+
+class ParallaxSteps:
+    """The steps of :class:`~mslam.system.frontend.SlamSystem` for priors that need parallax
+    (module docstring); a mixin that only ``SlamSystem`` inherits, which owns these fields."""
+
+    cfg: SlamConfig
+    prior: Prior
+    stats: RunStats
+    backend: Backend
+    tracker: Tracker
+    mode: Mode
+    anchor: FloatArray
+    T_WC_last: FloatArray
+    poses: list[FramePose]
+    init_candidate: Frame | None
+    init_pending: list[Frame]
+    last_tracked: TrackedFrame | None
+    keyframes: Any  # SlamSystem.keyframes, the backend's KeyframeStore
+    retrieval: Any  # SlamSystem.retrieval, the backend's RetrievalIndex
+    record: Callable[..., None]
+    track: Callable[..., FrameStatus]
+    make_keyframe: Callable[..., int]
+    lose_tracking: Callable[[], None]
+
+    def pair_status(self) -> str:
+        """The prior's verdict on its last pair, ``"parallax"`` also for an ``"ok"`` pair whose
+        median triangulation angle is below ``tracking.min_pair_angle_deg``."""
+        status = prior_status(self.prior)
+        info = getattr(self.prior, "last_info", None)
+        if status == "ok" and isinstance(info, dict) and "angle_deg" in info:
+            section = dict(self.cfg.sections.get("tracking", {}))
+            if float(info["angle_deg"]) < float(
+                section.get("min_pair_angle_deg", MIN_PAIR_ANGLE_DEG)
+            ):
+                return "parallax"
+        return status
+
+    def init_with_parallax(self, frame: Frame) -> FrameStatus:
+        """INIT for priors without single-image depth: wait for a non-degenerate first pair.
+
+        The first frame is the candidate; later frames wait in ``init_pending``. At the first
+        frame whose pairs with the candidate are usable in both directions, the candidate
+        becomes keyframe 0 (``X_ii`` of ``pair(candidate, frame)``), the frame is tracked and
+        made keyframe 1, and the waiting frames are tracked against these two keyframes.
+        """
+        cand = self.init_candidate
+        if cand is None:
+            self.init_candidate, self.init_pending = frame, []
+            return FrameStatus.WAITING
+        with self.stats.timer("prior"):
+            self.prior.pair(frame, cand)  # the direction tracking uses must be usable too
+            status = prior_status(self.prior)
+            p = self.prior.pair(cand, frame) if status == "ok" else None
+        if p is not None:
+            status = prior_status(self.prior)
+        if p is None or status != "ok":
+            if status == "few_inliers":  # too far apart to match: start again from here
+                for f in [cand, *self.init_pending]:
+                    self.stats.lost_frames += 1
+                    self.record(f, -1, None, FrameStatus.LOST)
+                self.init_candidate, self.init_pending = frame, []
+            else:
+                self.init_pending.append(frame)
+            return FrameStatus.WAITING
+        k = self.backend.add_keyframe(cand, self.anchor, p.X_ii, p.C_ii, p.D_ii, p.Q_ii)
+        self.retrieval.update(self.keyframes[k].features)
+        self.T_WC_last = self.keyframes[k].T_WC.copy()
+        self.record(cand, k, None, FrameStatus.KEYFRAME)
+        self.mode = Mode.TRACKING
+        result = self.track(frame, force_keyframe=True)
+        if result == FrameStatus.LOST:
+            self.lose_tracking()
+        else:
+            T_last = self.T_WC_last.copy()
+            for f in self.init_pending:
+                if self.track(f, allow_keyframe=False) == FrameStatus.LOST:
+                    self.stats.lost_frames += 1
+            self.T_WC_last, self.tracker.idx_f2k = T_last, None
+        self.init_candidate, self.init_pending = None, []
+        return result
+
+    def keyframe_pair(self, frame: Frame) -> KeyframePair:
+        """The pair with the last keyframe, or with the one before it when the prior flags the
+        first pair degenerate (``last_status``); with the rotation to pose the frame by when
+        the pair with the last keyframe lacks parallax and no fallback worked."""
+        kf_idx = len(self.keyframes) - 1
+        with self.stats.timer("prior"):
+            p = self.prior.pair(frame, self.keyframes[kf_idx].frame)
+        status = self.pair_status()
+        if status in ("ok", "same"):
+            return KeyframePair(kf_idx, p, False, status, None)
+        R_ji = getattr(self.prior, "last_R_ji", None) if status == "parallax" else None
+        if kf_idx > self.backend.map_start:  # the keyframe before it, in the same map
+            with self.stats.timer("prior"):
+                p_prev = self.prior.pair(frame, self.keyframes[kf_idx - 1].frame)
+            if self.pair_status() == "ok":
+                return KeyframePair(kf_idx - 1, p_prev, True, status, None)
+        return KeyframePair(kf_idx, p, False, status, R_ji)
+
+    def track_rotation_only(self, frame: Frame, pair: KeyframePair) -> FrameStatus | None:
+        """Pose a frame without parallax to its keyframe: a rotation, no translation.
+
+        Without parallax the camera centre is within a small fraction of the scene depth from
+        the keyframe's, so ``T_CkCf = (0, R_ji, 1)`` is off by at most that baseline. ``R_ji``
+        is the prior's (``pair.R_ji``) or, when the prior gives none, the rotation of a
+        tracking solve on the pair that fuses nothing (None, nothing recorded, if it fails).
+        Nothing is fused and the frame never asks for a keyframe; it may become one late
+        (:meth:`promote_last_tracked`).
+        """
+        kf = self.keyframes[pair.kf_idx]
+        q = None if pair.R_ji is None else so3.from_matrix(pair.R_ji)
+        if q is None:
+            res = self.tracker.track(kf, pair.p, self.T_WC_last, fuse=False)
+            if res is None:
+                return None
+            q = np.asarray(res.T_CkCf[3:7], np.float64)
+        T_CkCf = np.concatenate([np.zeros(3), q, [1.0]])
+        self.T_WC_last = sim3.mul(kf.T_WC, T_CkCf)
+        self.last_tracked = TrackedFrame(frame, self.T_WC_last, pair.p)
+        self.record(frame, pair.kf_idx, T_CkCf, FrameStatus.ROTATION)
+        return FrameStatus.ROTATION
+
+    def promote_last_tracked(self) -> bool:
+        """Make the last tracked frame a keyframe (late), when the current frame is already
+        too far from the last keyframe for the prior (``last_status == "few_inliers"``).
+
+        A prior whose correspondences break down under large motion (the two-view prior's
+        optical flow) can lose a keyframe before the match-fraction test asks for a new one;
+        the previous frame, tracked with its own pointmap ``X_ii`` and pose, is then the
+        keyframe that should have been made. Returns whether one was added.
+        """
+        last, self.last_tracked = self.last_tracked, None
+        if last is None or last.frame.index == self.keyframes.last().frame.index:
+            return False
+        self.poses = [q for q in self.poses if q.index != last.frame.index]
+        self.make_keyframe(last.frame, last.T_WC, last.p)
+        return True

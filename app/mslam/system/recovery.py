@@ -1,0 +1,138 @@
+"""Recovery beyond relocalisation — a new map when the current one cannot be rejoined.
+
+While tracking is lost every frame tries relocalisation (``mslam.system.reloc``). When that
+keeps failing, or the divergence watch keeps refusing poses, the frontend gives the map up and
+starts a new one from the incoming frames, as at the start of a run:
+
+* ``recovery.max_lost_frames`` consecutive frames without a pose (relocalisation failed on
+  each), or
+* ``recovery.max_refusals`` frame poses refused by the divergence watch
+  (``mslam.system.divergence``) within the last ``recovery.refusal_window`` frames.
+
+Maps are consecutive segments of the keyframe store: map ``m`` holds the keyframes from its
+``first_keyframe`` to the next map's. The backend builds edges and solves inside the current
+map only, relocalisation searches only its keyframes, and the keyframes of earlier maps keep
+their last poses. The new map's first keyframe is anchored at the final pose (rotation,
+position and Sim(3) scale) of the last frame that had a pose, so the trajectory stays in one
+frame of reference and in the TUM format; but how the new map's orientation, position and
+scale relate to the old map's is only as good as that one pose, and the maps are not merged
+(no edge, loop closure or relocalisation joins them). ``summary.json`` says so: ``maps``
+(one entry per map: the frame that started it, its first keyframe, frames posed in it, the
+reason) and one sentence per new map in ``warnings``.
+
+Public names, in reading order:
+    RecoveryConfig, Recovery
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields
+from typing import Any
+
+from mslam.system.state import FrameStatus
+
+__all__ = ["Recovery", "RecoveryConfig"]
+
+
+@dataclass(frozen=True)
+class RecoveryConfig:
+    """``recovery.*`` keys (module docstring); 0 turns a trigger off.
+
+    Attributes:
+        max_lost_frames: consecutive lost frames that start a new map.
+        max_refusals: refused frame poses within ``refusal_window`` frames that start one.
+        refusal_window: frames over which refusals are counted.
+    """
+
+    max_lost_frames: int = 15
+    max_refusals: int = 4
+    refusal_window: int = 30
+
+    @classmethod
+    def from_sections(cls, sections: Mapping[str, Any]) -> RecoveryConfig:
+        """From the resolved configuration's ``recovery`` section (missing keys: defaults)."""
+        section = dict(sections.get("recovery", {}))
+        return cls(**{f.name: int(section[f.name]) for f in fields(cls) if f.name in section})
+
+
+@dataclass
+class Recovery:
+    """Counts lost frames and refusals, says when to start a new map, and lists the maps.
+
+    Attributes:
+        cfg: the triggers.
+        maps: one dict per map: ``map``, ``first_frame`` (the frame that started it; None for
+            the first), ``first_keyframe``, ``reason`` (None for the first).
+    """
+
+    cfg: RecoveryConfig = field(default_factory=RecoveryConfig)
+    maps: list[dict[str, Any]] = field(
+        default_factory=lambda: [
+            {"map": 0, "first_frame": None, "first_keyframe": 0, "reason": None}
+        ]
+    )
+
+    def __post_init__(self) -> None:
+        self._lost_run = 0
+        self._refused: deque[int] = deque()  # frame indices of recent refusals
+        self._events_seen = 0
+
+    def after_frame(self, index: int, status: FrameStatus, refused: list[int]) -> str | None:
+        """Count frame ``index`` (its ``status``) and the refusals so far (``refused``: the
+        frame index of every refused pose of the run); the reason to start a new map, or None.
+        """
+        cfg = self.cfg
+        self._lost_run = self._lost_run + 1 if status == FrameStatus.LOST else 0
+        self._refused.extend(refused[self._events_seen :])
+        self._events_seen = len(refused)
+        while self._refused and self._refused[0] <= index - cfg.refusal_window:
+            self._refused.popleft()
+        if cfg.max_lost_frames and self._lost_run >= cfg.max_lost_frames:
+            return f"{self._lost_run} consecutive frames lost (relocalisation failed on each)"
+        if cfg.max_refusals and len(self._refused) >= cfg.max_refusals:
+            return (
+                f"{len(self._refused)} implausible poses refused within {cfg.refusal_window} frames"
+            )
+        return None
+
+    def new_map(self, index: int, first_keyframe: int, reason: str) -> None:
+        """Record that frame ``index`` starts map ``len(maps)`` at keyframe ``first_keyframe``;
+        the counters restart."""
+        self.maps.append(
+            {"map": len(self.maps), "first_frame": int(index),
+             "first_keyframe": int(first_keyframe), "reason": reason}
+        )  # fmt: skip
+        self._lost_run = 0
+        self._refused.clear()
+
+    def map_of(self, kf: int) -> int:
+        """The map keyframe ``kf`` belongs to."""
+        return max(m["map"] for m in self.maps if m["first_keyframe"] <= kf)
+
+    def report(self, poses: list[Any], n_keyframes: int) -> dict[str, Any]:
+        """The summary's ``maps`` (each with ``keyframes`` and ``frames_posed`` added) and a
+        warning per new map.
+
+        Args:
+            poses: the system's per-frame records (``FramePose``: ``index``, ``kf``).
+            n_keyframes: keyframes in the store.
+        """
+        posed: dict[int, int] = {}
+        for p in poses:
+            if 0 <= p.kf < n_keyframes:
+                m = self.map_of(p.kf)
+                posed[m] = posed.get(m, 0) + 1
+        ends = [m["first_keyframe"] for m in self.maps[1:]] + [n_keyframes]
+        maps = [
+            {**m, "keyframes": max(0, end - m["first_keyframe"]), "frames_posed": posed.get(i, 0)}
+            for i, (m, end) in enumerate(zip(self.maps, ends, strict=True))
+        ]
+        warnings = [
+            f"a new map (map {m['map']}) was started at frame {m['first_frame']}: "
+            f"{m['reason']}; it is anchored at the last posed frame's pose and scale, not "
+            "aligned to the earlier map (maps are not merged)"
+            for m in self.maps[1:]
+        ]
+        return {"maps": maps, "warnings": warnings}
