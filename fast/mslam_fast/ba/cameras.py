@@ -1,8 +1,9 @@
 """Taichi twin of ``mslam_ref.ba.cameras`` — same names, parameters and shapes; see there for the maths.
 
 Each public function runs one parallel loop over the O observations (one observation per
-iteration, no reductions); projection, residual and both Jacobians are fused in one pass. Inputs
-are coerced to the runtime dtype; indices stay int64.
+iteration, no reductions); projection, residual and both Jacobians are fused in one pass. The
+BAL functions first compute each camera's rotation matrix (M items), so the observations' loop
+has no sin/cos. Inputs are coerced to the runtime dtype; indices stay int64.
 """
 
 from typing import Any
@@ -30,18 +31,36 @@ def _load(A: template, i, n: template):
 
 
 @ti.kernel
-def _bal_res_k(cams: nd, pts: nd, oc: nd, op: nd, obs: nd, r: nd):
+def _bal_rot_k(cams: nd, R: nd):
+    for c in range(cams.shape[0]):  # one rotation per camera, shared by its observations
+        Rc = K.rodrigues(ti.Vector([cams[c, 0], cams[c, 1], cams[c, 2]]))
+        for i in ti.static(range(3)):
+            for j in ti.static(range(3)):
+                R[c, i, j] = Rc[i, j]
+
+
+@ti.func
+def _rot(R: template, c):
+    return ti.Matrix([[R[c, i, j] for j in ti.static(range(3))] for i in ti.static(range(3))])
+
+
+@ti.kernel
+def _bal_res_k(cams: nd, R: nd, pts: nd, oc: nd, op: nd, obs: nd, r: nd):
     for e in range(oc.shape[0]):
-        pix, _R, _RX, _P, _p, _r2, _d = K.bal_project(_load(cams, oc[e], 9), _load(pts, op[e], 3))
+        c = oc[e]
+        pix, _R, _RX, _P, _p, _r2, _d = K.bal_project(
+            _load(cams, c, 9), _rot(R, c), _load(pts, op[e], 3)
+        )
         for i in ti.static(range(2)):
             r[e, i] = pix[i] - obs[e, i]
 
 
 @ti.kernel
-def _bal_lin_k(cams: nd, pts: nd, oc: nd, op: nd, obs: nd, r: nd, Jc: nd, Jp: nd):
+def _bal_lin_k(cams: nd, Rc: nd, pts: nd, oc: nd, op: nd, obs: nd, r: nd, Jc: nd, Jp: nd):
     for e in range(oc.shape[0]):
-        cam = _load(cams, oc[e], 9)
-        pix, R, RX, P, p, r2, d = K.bal_project(cam, _load(pts, op[e], 3))
+        c = oc[e]
+        cam = _load(cams, c, 9)
+        pix, R, RX, P, p, r2, d = K.bal_project(cam, _rot(Rc, c), _load(pts, op[e], 3))
         A, B = K.bal_jacobians(cam, R, RX, P, p, r2, d)
         for i in ti.static(range(2)):
             r[e, i] = pix[i] - obs[e, i]
@@ -88,11 +107,21 @@ def _empty(*shape: int) -> Array:
     return np.zeros(shape, dtype=ensure_init().dtype)
 
 
+def _bal_args(cameras: Any, points: Any, obs_cam: Any, obs_pt: Any, obs: Any) -> tuple:
+    """Coerced inputs with the (M, 3, 3) camera rotations in second place."""
+    cams = prepare(cameras, "cameras", 9)
+    R = _empty(len(cams), 3, 3)
+    if len(cams):
+        _bal_rot_k(cams, R)
+    return (cams, R, prepare(points, "points", 3), _idx(obs_cam), _idx(obs_pt),
+            prepare(obs, "obs", 2))  # fmt: skip
+
+
 def bal_residuals(cameras: Any, points: Any, obs_cam: Any, obs_pt: Any, obs: Any) -> Array:
-    """Taichi twin of ``mslam_ref.ba.cameras.bal_residuals`` (parallel over O)."""
-    args = (prepare(cameras, "cameras", 9), prepare(points, "points", 3), _idx(obs_cam),
-            _idx(obs_pt), prepare(obs, "obs", 2))  # fmt: skip
-    r = _empty(len(args[2]), 2)
+    """Taichi twin of ``mslam_ref.ba.cameras.bal_residuals`` (rotations per camera, then
+    parallel over O)."""
+    args = _bal_args(cameras, points, obs_cam, obs_pt, obs)
+    r = _empty(len(args[3]), 2)
     if len(r):
         _bal_res_k(*args, r)
     return r
@@ -101,10 +130,10 @@ def bal_residuals(cameras: Any, points: Any, obs_cam: Any, obs_pt: Any, obs: Any
 def bal_linearize(
     cameras: Any, points: Any, obs_cam: Any, obs_pt: Any, obs: Any
 ) -> tuple[Array, Array, Array]:
-    """Taichi twin of ``mslam_ref.ba.cameras.bal_linearize`` (parallel over O, fused)."""
-    args = (prepare(cameras, "cameras", 9), prepare(points, "points", 3), _idx(obs_cam),
-            _idx(obs_pt), prepare(obs, "obs", 2))  # fmt: skip
-    O = len(args[2])
+    """Taichi twin of ``mslam_ref.ba.cameras.bal_linearize`` (rotations per camera, then
+    parallel over O, fused)."""
+    args = _bal_args(cameras, points, obs_cam, obs_pt, obs)
+    O = len(args[3])
     r, Jc, Jp = _empty(O, 2), _empty(O, 2, 9), _empty(O, 2, 3)
     if O:
         _bal_lin_k(*args, r, Jc, Jp)

@@ -3,13 +3,13 @@
 Parallel axes and reductions (no atomics anywhere; every sum runs in a ``ti.f64`` local over a
 CSR list built once by ``build_structure``, so results are deterministic):
 
-* ``normal_blocks``: W per observation (O items); U and bc per (camera, row) (M d items, each
-  summing the camera's observations); V and bl per point (P items).
+* ``normal_blocks``: W per observation (O items); U (its upper triangle, mirrored) and bc per
+  camera (M items, each summing the camera's observations); V and bl per point (P items).
 * ``jacobi_scale``: D and the scaled U, bc per camera (M items), V, bl per point (P items), W per
   observation (O items).
 * ``schur_complement``: V^-1 per point (adjugate, P items); Y = W V^-1 and Y bl per observation
-  (O items); rhs per (camera, row); S per (block, row) over the block's observation pairs
-  (B d items).
+  (O items); rhs per (camera, row); S per block over the block's observation pairs (B items;
+  a diagonal block sums its upper triangle only and mirrors it).
 * ``back_substitute``: one point per item (P items).
 
 ``build_structure``, ``dense_reduced`` and ``solve_reduced`` have no kernel (host set-up and a
@@ -52,18 +52,22 @@ def _W_k(Jc: nd, Jp: nd, w: nd, W: nd, d: template, k: template):
 def _U_k(Jc: nd, w: nd, r: nd, ptr: nd, order: nd, U: nd, bc: nd, d: template,
          k: template):  # fmt: skip
     for c in range(U.shape[0]):  # one camera per item, its observations in CSR order
-        acc = ti.Matrix.zero(f64, d, d)
+        acc = ti.Matrix.zero(f64, d, d)  # upper triangle only, mirrored at the end
         accb = ti.Vector.zero(f64, d)
         for q in range(ti.cast(ptr[c], ti.i32), ti.cast(ptr[c + 1], ti.i32)):
             e = order[q]
             we = ti.cast(w[e], f64)
             for m in ti.static(range(k)):
                 J = ti.Vector([ti.cast(Jc[e, m, i], f64) for i in ti.static(range(d))])
-                acc += (we * J).outer_product(J)
-                accb += (we * r[e, m]) * J
+                wJ = we * J
+                for i in ti.static(range(d)):
+                    for j in ti.static(range(i, d)):
+                        acc[i, j] += wJ[i] * J[j]
+                accb += r[e, m] * wJ
         for i in ti.static(range(d)):
-            for j in ti.static(range(d)):
+            for j in ti.static(range(i, d)):
                 U[c, i, j] = acc[i, j]
+                U[c, j, i] = acc[i, j]
             bc[c, i] = -accb[i]
 
 
@@ -145,24 +149,41 @@ def _rhs_k(bc: nd, t: nd, ptr: nd, order: nd, rhs: nd):
         rhs[c, i] = bc[c, i] - acc
 
 
+@ti.func
+def _S_pairs(Y: template, W: template, pptr: template, pa: template, pb: template, b,
+             d: template, upper: template):  # fmt: skip
+    """-sum over the block's pairs of Y_a W_b^T (d x d, f64); only i <= j when ``upper``."""
+    acc = ti.Matrix.zero(f64, d, d)
+    for q in range(ti.cast(pptr[b], ti.i32), ti.cast(pptr[b + 1], ti.i32)):
+        a, c = pa[q], pb[q]
+        for i in ti.static(range(d)):
+            y0, y1, y2 = (
+                ti.cast(Y[a, i, 0], f64),
+                ti.cast(Y[a, i, 1], f64),
+                ti.cast(Y[a, i, 2], f64),
+            )
+            for j in ti.static(range(i if ti.static(upper) else 0, d)):
+                acc[i, j] -= y0 * W[c, j, 0] + y1 * W[c, j, 1] + y2 * W[c, j, 2]
+    return acc
+
+
 @ti.kernel
 def _S_k(Y: nd, W: nd, U: nd, lam: f64, brow: nd, bcol: nd, pptr: nd, pa: nd, pb: nd, S: nd,
          d: template):  # fmt: skip
     for b in range(S.shape[0]):  # one d x d block per item: Y and W blocks are loaded once
-        acc = ti.Matrix.zero(f64, d, d)
-        for q in range(ti.cast(pptr[b], ti.i32), ti.cast(pptr[b + 1], ti.i32)):
-            a, c = pa[q], pb[q]
-            y = ti.Matrix([[Y[a, i, m] for m in ti.static(range(3))] for i in ti.static(range(d))])
-            w = ti.Matrix([[W[c, j, m] for m in ti.static(range(3))] for j in ti.static(range(d))])
-            acc -= ti.cast(y, f64) @ ti.cast(w, f64).transpose()
-        if brow[b] == bcol[b]:
+        c = brow[b]
+        if c == bcol[b]:  # diagonal block: symmetric, its upper triangle mirrored
+            acc = _S_pairs(Y, W, pptr, pa, pb, b, d, True)
+            for i in ti.static(range(d)):
+                for j in ti.static(range(i, d)):
+                    v = acc[i, j] + U[c, i, j] + (lam if i == j else 0.0)
+                    S[b, i, j] = v
+                    S[b, j, i] = v
+        else:
+            acc = _S_pairs(Y, W, pptr, pa, pb, b, d, False)
             for i in ti.static(range(d)):
                 for j in ti.static(range(d)):
-                    acc[i, j] += U[brow[b], i, j]
-                acc[i, i] += lam
-        for i in ti.static(range(d)):
-            for j in ti.static(range(d)):
-                S[b, i, j] = acc[i, j]
+                    S[b, i, j] = acc[i, j]
 
 
 @ti.kernel
