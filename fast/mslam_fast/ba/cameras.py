@@ -3,7 +3,8 @@
 Each public function runs one parallel loop over the O observations (one observation per
 iteration, no reductions); projection, residual and both Jacobians are fused in one pass. The
 BAL functions first compute each camera's rotation matrix (M items), so the observations' loop
-has no sin/cos. Inputs are coerced to the runtime dtype; indices stay int64.
+has no sin/cos. Inputs are coerced to the runtime dtype; indices stay int64. The residual and
+Jacobian arrays are recycled once the caller has released them (``mslam_fast._recycle``).
 """
 
 from typing import Any
@@ -12,6 +13,7 @@ import numpy as np
 import taichi as ti
 
 from mslam_fast._kernels import ba as K
+from mslam_fast._recycle import output
 from mslam_fast._runtime import ensure_init, prepare
 from mslam_fast._types import nd, template
 
@@ -107,6 +109,11 @@ def _empty(*shape: int) -> Array:
     return np.zeros(shape, dtype=ensure_init().dtype)
 
 
+def _out(key: str, *shape: int) -> Array:
+    """A recycled output (``mslam_fast._recycle``): the kernels write every element."""
+    return output(key, shape, ensure_init().dtype)
+
+
 def _bal_args(cameras: Any, points: Any, obs_cam: Any, obs_pt: Any, obs: Any) -> tuple:
     """Coerced inputs with the (M, 3, 3) camera rotations in second place."""
     cams = prepare(cameras, "cameras", 9)
@@ -121,7 +128,7 @@ def bal_residuals(cameras: Any, points: Any, obs_cam: Any, obs_pt: Any, obs: Any
     """Taichi twin of ``mslam_ref.ba.cameras.bal_residuals`` (rotations per camera, then
     parallel over O)."""
     args = _bal_args(cameras, points, obs_cam, obs_pt, obs)
-    r = _empty(len(args[3]), 2)
+    r = _out("bal_r", len(args[3]), 2)
     if len(r):
         _bal_res_k(*args, r)
     return r
@@ -134,7 +141,7 @@ def bal_linearize(
     parallel over O, fused)."""
     args = _bal_args(cameras, points, obs_cam, obs_pt, obs)
     O = len(args[3])
-    r, Jc, Jp = _empty(O, 2), _empty(O, 2, 9), _empty(O, 2, 3)
+    r, Jc, Jp = _out("bal_lin_r", O, 2), _out("bal_Jc", O, 2, 9), _out("bal_Jp", O, 2, 3)
     if O:
         _bal_lin_k(*args, r, Jc, Jp)
     return r, Jc, Jp
@@ -149,7 +156,7 @@ def _pin_args(poses, intrinsics, points, obs_cam, obs_pt, meas, is_stereo):
 def pinhole_residuals(poses, intrinsics, points, obs_cam, obs_pt, meas, is_stereo) -> Array:
     """Taichi twin of ``mslam_ref.ba.cameras.pinhole_residuals`` (parallel over O)."""
     args = _pin_args(poses, intrinsics, points, obs_cam, obs_pt, meas, is_stereo)
-    r = _empty(len(args[3]), 3)
+    r = _out("pin_r", len(args[3]), 3)
     if len(r):
         _pin_res_k(*args, r)
     return r
@@ -161,7 +168,7 @@ def pinhole_linearize(
     """Taichi twin of ``mslam_ref.ba.cameras.pinhole_linearize`` (parallel over O, fused)."""
     args = _pin_args(poses, intrinsics, points, obs_cam, obs_pt, meas, is_stereo)
     O = len(args[3])
-    r, Jc, Jp = _empty(O, 3), _empty(O, 3, 6), _empty(O, 3, 3)
+    r, Jc, Jp = _out("pin_lin_r", O, 3), _out("pin_Jc", O, 3, 6), _out("pin_Jp", O, 3, 3)
     if O:
         _pin_lin_k(*args, r, Jc, Jp)
     return r, Jc, Jp

@@ -12,7 +12,10 @@ CSR list built once by ``build_structure``, so results are deterministic):
   a diagonal block sums its upper triangle only and mirrors it).
 * ``back_substitute``: one point per item (P items).
 
-``build_structure``, ``dense_reduced`` and ``solve_reduced`` have no kernel (host set-up and a
+The large outputs (W, the scaled W, S, Vinv) are recycled once the caller has released them
+(``mslam_fast._recycle``). Inputs are coerced to the runtime dtype and their shapes checked, not scanned for NaN/inf: the
+reference computes on any value (a singular damped V_j gives ``inf`` in Vinv, and the solve
+fails later). ``build_structure``, ``dense_reduced`` and ``solve_reduced`` have no kernel (host set-up and a
 SciPy/LAPACK Cholesky): the LM driver calls ``mslam_ref.ba.schur``'s.
 """
 
@@ -23,7 +26,8 @@ import taichi as ti
 
 from mslam_fast._kernels import ba as K
 from mslam_fast._matching_host import _kept, _zeros
-from mslam_fast._runtime import ensure_init, prepare
+from mslam_fast._recycle import output
+from mslam_fast._runtime import coerce, ensure_init
 from mslam_fast._types import f64, nd, template
 from mslam_ref.ba.schur import BlockStructure
 
@@ -207,18 +211,23 @@ def _z(*shape: int) -> Array:
     return np.zeros(shape, dtype=ensure_init().dtype)
 
 
+def _out(key: str, *shape: int) -> Array:
+    """A recycled output (``mslam_fast._recycle``): the kernels write every element."""
+    return output(key, shape, ensure_init().dtype)
+
+
 def normal_blocks(
     r: Any, J_cam: Any, J_pt: Any, weight: Any, structure: BlockStructure
 ) -> tuple[Array, Array, Array, Array, Array]:
     """Taichi twin of ``mslam_ref.ba.schur.normal_blocks`` (W per observation, U/bc per
     (camera, row), V/bl per point; f64 accumulation over CSR lists, no atomics)."""
     s, d = structure, structure.cam_dof
-    r = prepare(r, "r", None)
+    r = coerce(r, "r", None)
     k = r.shape[1]
-    Jc, Jp = prepare(J_cam, "J_cam", (k, d)), prepare(J_pt, "J_pt", (k, 3))
-    w = prepare(weight, "weight", None)
+    Jc, Jp = coerce(J_cam, "J_cam", (k, d)), coerce(J_pt, "J_pt", (k, 3))
+    w = coerce(weight, "weight", None)
     O, M, P = len(r), s.n_cams, s.n_points
-    U, V, W, bc, bl = _z(M, d, d), _z(P, 3, 3), _z(O, d, 3), _z(M, d), _z(P, 3)
+    U, V, W, bc, bl = _z(M, d, d), _z(P, 3, 3), _out("W", O, d, 3), _z(M, d), _z(P, 3)
     if O:
         _W_k(Jc, Jp, w, W, d, k)
         _U_k(Jc, w, r, s.cam_ptr, s.cam_obs, U, bc, d, k)
@@ -232,10 +241,10 @@ def jacobi_scale(
     """Taichi twin of ``mslam_ref.ba.schur.jacobi_scale`` (per camera, per point, per
     observation; no reductions)."""
     s, d = structure, structure.cam_dof
-    U, V = prepare(U, "U", (d, d)), prepare(V, "V", (3, 3))
-    W, bc, bl = prepare(W, "W", (d, 3)), prepare(bc, "bc", d), prepare(bl, "bl", 3)
+    U, V = coerce(U, "U", (d, d)), coerce(V, "V", (3, 3))
+    W, bc, bl = coerce(W, "W", (d, 3)), coerce(bc, "bc", d), coerce(bl, "bl", 3)
     M, P, O = len(U), len(V), len(W)
-    Us, Vs, Ws, bcs, bls, Dc, Dp = (_z(M, d, d), _z(P, 3, 3), _z(O, d, 3), _z(M, d), _z(P, 3),
+    Us, Vs, Ws, bcs, bls, Dc, Dp = (_z(M, d, d), _z(P, 3, 3), _out("Ws", O, d, 3), _z(M, d), _z(P, 3),
                                     _z(M, d), _z(P, 3))  # fmt: skip
     if M:
         _jac_diag_k(U, bc, Dc, Us, bcs, d)
@@ -252,14 +261,14 @@ def schur_complement(
     """Taichi twin of ``mslam_ref.ba.schur.schur_complement`` (V^-1 per point, Y per
     observation, rhs per (camera, row), S per (block, row) over its pair list; f64 sums)."""
     s, d = structure, structure.cam_dof
-    U, V = prepare(U, "U", (d, d)), prepare(V, "V", (3, 3))
-    W, bc, bl = prepare(W, "W", (d, 3)), prepare(bc, "bc", d), prepare(bl, "bl", 3)
+    U, V = coerce(U, "U", (d, d)), coerce(V, "V", (3, 3))
+    W, bc, bl = coerce(W, "W", (d, 3)), coerce(bc, "bc", d), coerce(bl, "bl", 3)
     O, M, P = len(W), s.n_cams, s.n_points
-    Vinv, rhs = _z(P, 3, 3), _z(M, d)
+    Vinv, rhs = _out("Vinv", P, 3, 3), _z(M, d)
     # Y and t are written whole before they are read: kept per thread and shape (fresh pages
     # cost a fault each; on CUDA they stay in GPU memory)
     Y, t = _kept(("ba_Y", O, d), lambda: (_zeros((O, d, 3)), _zeros((O, d))))
-    S = _z(len(s.block_row), d, d)
+    S = _out("S", len(s.block_row), d, d)
     if P:
         _vinv_k(V, float(lam), Vinv)
     if O:
@@ -272,8 +281,8 @@ def schur_complement(
 def back_substitute(Vinv: Any, W: Any, bl: Any, dc: Any, structure: BlockStructure) -> Array:
     """Taichi twin of ``mslam_ref.ba.schur.back_substitute`` (one point per item)."""
     s, d = structure, structure.cam_dof
-    Vinv, W = prepare(Vinv, "Vinv", (3, 3)), prepare(W, "W", (d, 3))
-    bl, dc = prepare(bl, "bl", 3), prepare(dc, "dc", d)
+    Vinv, W = coerce(Vinv, "Vinv", (3, 3)), coerce(W, "W", (d, 3))
+    bl, dc = coerce(bl, "bl", 3), coerce(dc, "dc", d)
     dl = _z(s.n_points, 3)
     if s.n_points:
         _back_k(Vinv, W, bl, dc, s.pt_ptr, s.pt_obs, s.obs_cam, dl, d)

@@ -144,11 +144,14 @@ def robust_chi2(problem: Any, kernels: Any, cams: FloatArray, points: FloatArray
     return float(np.sum(problem.robust(s)[0]))
 
 
-def _check_finite_start(problem: Any, cams: FloatArray, points: FloatArray) -> None:
+def _check_finite_start(problem: Any, kernels: Any, cams: FloatArray, points: FloatArray) -> None:
     """``ValueError`` naming the first observation whose residual is not finite at the start
-    (a point at a camera centre, depth 0). Evaluated with the reference kernels, so both
-    kernel sets give the same error before any of their kernels runs."""
+    (a point at a camera centre, depth 0). Screened with the kernel set's residuals; when one is
+    not finite, the message comes from the reference kernels' residuals, so both kernel sets give
+    the same error before any of their steps runs."""
     with np.errstate(all="ignore"):
+        if np.all(np.isfinite(problem.residuals(kernels, cams, points))):
+            return
         r = problem.residuals(_default_kernels(), cams, points)
     bad = np.flatnonzero(~np.all(np.isfinite(r), axis=-1))
     if bad.size:
@@ -190,6 +193,12 @@ def _linear_system(problem: Any, kernels: Any, structure: Any, cams, points):
     V[~problem.point_free] = np.eye(3)
     bl[~problem.point_free] = 0.0
     return float(np.sum(rho)), (U, V, W, bc, bl)
+
+
+def _jacobi_scaled(kernels: Any, blocks: tuple[FloatArray, ...], structure: Any):
+    """The Jacobi-scaled ``(U, V, W, bc, bl)`` and the scales ``(Dc, Dp)``."""
+    Us, Vs, Ws, bcs, bls, Dc, Dp = kernels.schur.jacobi_scale(*blocks, structure)
+    return (Us, Vs, Ws, bcs, bls), (Dc, Dp)
 
 
 @dataclasses.dataclass
@@ -283,7 +292,7 @@ def optimize(
     clock = clock if clock is not None else StageClock(PROFILE_KEYS)
     with clock("initialize"):
         cams, points = problem.params()
-        _check_finite_start(problem, cams, points)
+        _check_finite_start(problem, k, cams, points)
     with clock("build_structure"):
         st = _schur.build_structure(
             problem.obs_cam, problem.obs_pt, len(cams), len(points), problem.cam_dof
@@ -294,12 +303,12 @@ def optimize(
         state = _State(cams, points, robust_chi2(problem, k, cams, points))
     F0, history, stop = state.F, [], "iterations"
     for it in range(cfg.iterations):
+        blocks = D = None  # the previous system is released first: a kernel set may reuse it
         with clock("build_system"):
             state.F, blocks = _linear_system(problem, k, st, state.cams, state.points)
             D = None
             if cfg.jacobi_scaling:
-                *scaled, Dc, Dp = k.schur.jacobi_scale(*blocks, st)
-                blocks, D = tuple(scaled), (Dc, Dp)
+                blocks, D = _jacobi_scaled(k, blocks, st)
         if it == 0:
             state.lam = _initial_lambda(problem, blocks, cfg.tau)
         b = np.concatenate([blocks[3].ravel(), blocks[4].ravel()])
