@@ -31,7 +31,7 @@ The driver is shared by both kernel sets: ``kernels`` is any object with ``camer
 ``mslam_fast.ba`` (the application's kernel set passes one). The reduced camera system is
 analysed once per call (``reduced.analyse``: ordering and storage, the "symbolic_decomposition"
 stage) and refactored every trial (``reduced.factor_solve``, "numerical_decomposition"), by the
-kernel set's ``reduced`` module when it has one, else ``mslam_ref.ba.reduced``.
+kernel set's ``reduced`` functions where it has them, else ``mslam_ref.ba.reduced``'s.
 
 Public names, in reading order: LMConfig, LMResult, PROFILE_KEYS, robust_chi2, solve_damped,
 optimize.
@@ -223,8 +223,13 @@ def _initial_lambda(problem: Any, blocks: tuple[FloatArray, ...], tau: float) ->
 
 
 def _reduced_solver(kernels: Any) -> Any:
-    """The kernel set's ``reduced`` module (analyse, factor_solve), else the reference's."""
-    return getattr(kernels, "reduced", None) or _reduced
+    """``analyse`` and ``factor_solve``: the kernel set's ``reduced`` functions where it has
+    them, else the reference's."""
+    mod = getattr(kernels, "reduced", None)
+    return SimpleNamespace(
+        analyse=getattr(mod, "analyse", _reduced.analyse),
+        factor_solve=getattr(mod, "factor_solve", _reduced.factor_solve),
+    )
 
 
 def _trial(problem, k, st, state: _State, blocks, D, b, clock: StageClock) -> tuple[float, Any]:

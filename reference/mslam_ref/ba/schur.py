@@ -144,18 +144,20 @@ def build_structure(
     a, b = pt_obs[a_pos], pt_obs[b_pos]
     ca, cb = obs_cam[a], obs_cam[b]
     keep = ca <= cb
-    a, b, ca, cb = a[keep], b[keep], ca[keep], cb[keep]
-    diag = np.arange(n_cams)
-    keys = np.unique(np.concatenate([ca * n_cams + cb, diag * n_cams + diag]))
-    blk = np.searchsorted(keys, ca * n_cams + cb)
-    pair_ptr, order = _csr(blk, len(keys))
-    block_row, block_col = keys // n_cams, keys % n_cams
+    a, b, pair_key = a[keep], b[keep], ca[keep] * n_cams + cb[keep]
+    # one stable sort groups the pairs by block; the blocks are the distinct keys plus every
+    # diagonal block (empty for a camera without observations)
+    order = np.argsort(pair_key, kind="stable")
+    pair_key = pair_key[order]
+    diag = np.arange(n_cams) * (n_cams + 1)
+    keys = np.union1d(pair_key[np.diff(pair_key, prepend=-1) != 0], diag)
+    pair_ptr = np.searchsorted(pair_key, np.r_[keys, n_cams * n_cams])
     return BlockStructure(
         n_cams=n_cams, n_points=n_points, cam_dof=cam_dof, obs_cam=obs_cam, obs_pt=obs_pt,
         cam_ptr=cam_ptr, cam_obs=cam_obs, pt_ptr=pt_ptr, pt_obs=pt_obs,
-        block_row=block_row, block_col=block_col,
-        diag_block=np.searchsorted(keys, diag * n_cams + diag),
-        pair_ptr=pair_ptr, pair_a=a[order], pair_b=b[order],
+        block_row=keys // n_cams, block_col=keys % n_cams,
+        diag_block=np.searchsorted(keys, diag),
+        pair_ptr=np.asarray(pair_ptr, np.int64), pair_a=a[order], pair_b=b[order],
     )  # fmt: skip
 
 
