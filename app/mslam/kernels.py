@@ -32,7 +32,13 @@ PIECES = {
     "fusion": ("update_pointmap",),
     "backend": ("solve",),
     "ba.cameras": ("bal_residuals", "bal_linearize", "pinhole_residuals", "pinhole_linearize"),
-    "ba.schur": ("normal_blocks", "jacobi_scale", "schur_complement", "back_substitute"),
+    "ba.schur": (
+        "normal_blocks",
+        "jacobi_scale",
+        "scaled_normal_blocks",
+        "schur_complement",
+        "back_substitute",
+    ),
     "ba.reduced": ("factor_solve",),
 }
 

@@ -47,6 +47,12 @@ def test_parity_linear_system_and_step(fast: str, problem) -> None:
     jf = F.schur.jacobi_scale(*br, st)
     for a, b in zip(jf, jr):
         _close(a, b, fast, np.abs(b).max())
+    cam_free, point_free = np.arange(len(cams)) % 3 != 0, np.arange(len(pts)) % 5 != 0
+    sr = R.schur.scaled_normal_blocks(*rr, w, cam_free, point_free, st)
+    sf = F.schur.scaled_normal_blocks(*rr, w, cam_free, point_free, st)
+    assert np.all(sr[0][~cam_free] == 0.25 * np.eye(p.cam_dof))  # identity, scaled by D = 1/2
+    for a, b in zip(sf, sr):
+        _close(a, b, fast, np.abs(b).max())
     lam = 1e-2 * max(np.abs(br[0]).max(), np.abs(br[1]).max())
     sr = R.schur.schur_complement(*br, lam, st)
     sf = F.schur.schur_complement(*br, lam, st)

@@ -7,6 +7,8 @@ CSR list built once by ``build_structure``, so results are deterministic):
   camera (M items, each summing the camera's observations); V and bl per point (P items).
 * ``jacobi_scale``: D and the scaled U, bc per camera (M items), V, bl per point (P items), W per
   observation (O items).
+* ``scaled_normal_blocks``: U/bc and V/bl as above, then D and the scaled blocks; the scaled W
+  per observation from the Jacobians (O items), with no unscaled W in memory.
 * ``schur_complement``: V^-1 per point (adjugate, P items); Y = W V^-1 and Y bl per observation
   (O items); rhs per (camera, row); S per block over the block's observation pairs (B items;
   a diagonal block sums its upper triangle only and mirrors it).
@@ -35,6 +37,7 @@ __all__ = [
     "back_substitute",
     "jacobi_scale",
     "normal_blocks",
+    "scaled_normal_blocks",
     "schur_complement",
 ]
 
@@ -113,6 +116,19 @@ def _jac_W_k(W: nd, Dc: nd, Dp: nd, oc: nd, op: nd, Ws: nd, d: template):
         for i in ti.static(range(d)):
             for j in ti.static(range(3)):
                 Ws[e, i, j] = W[e, i, j] * Dc[c, i] * Dp[p, j]
+
+
+@ti.kernel
+def _Ws_k(Jc: nd, Jp: nd, w: nd, Dc: nd, Dp: nd, oc: nd, op: nd, Ws: nd, d: template,
+          k: template):  # fmt: skip
+    for e in range(Jc.shape[0]):  # W_e = J_c^T w J_p scaled by Dc and Dp, never stored unscaled
+        c, p = oc[e], op[e]
+        for i in ti.static(range(d)):
+            for j in ti.static(range(3)):
+                acc = ti.cast(0.0, f64)
+                for m in ti.static(range(k)):
+                    acc += ti.cast(Jc[e, m, i] * Jp[e, m, j], f64)
+                Ws[e, i, j] = acc * w[e] * Dc[c, i] * Dp[p, j]
 
 
 @ti.kernel
@@ -252,6 +268,42 @@ def jacobi_scale(
         _jac_diag_k(V, bl, Dp, Vs, bls, 3)
     if O:
         _jac_W_k(W, Dc, Dp, s.obs_cam, s.obs_pt, Ws, d)
+    return Us, Vs, Ws, bcs, bls, Dc, Dp
+
+
+def scaled_normal_blocks(
+    r: Any,
+    J_cam: Any,
+    J_pt: Any,
+    weight: Any,
+    cam_free: Any,
+    point_free: Any,
+    structure: BlockStructure,
+) -> tuple[Array, Array, Array, Array, Array, Array, Array]:
+    """Taichi twin of ``mslam_ref.ba.schur.scaled_normal_blocks`` (U/bc per camera, V/bl per
+    point, masked and scaled on their small arrays; the scaled W per observation straight from
+    the Jacobians, so the unscaled W is never stored)."""
+    s, d = structure, structure.cam_dof
+    r = coerce(r, "r", None)
+    k = r.shape[1]
+    Jc, Jp = coerce(J_cam, "J_cam", (k, d)), coerce(J_pt, "J_pt", (k, 3))
+    w = coerce(weight, "weight", None)
+    O, M, P = len(r), s.n_cams, s.n_points
+    U, V, bc, bl = _z(M, d, d), _z(P, 3, 3), _z(M, d), _z(P, 3)
+    if O:
+        _U_k(Jc, w, r, s.cam_ptr, s.cam_obs, U, bc, d, k)
+        _V_k(Jp, w, r, s.pt_ptr, s.pt_obs, V, bl, k)
+    cf, pf = np.asarray(cam_free, bool), np.asarray(point_free, bool)
+    U[~cf], bc[~cf] = np.eye(d), 0.0
+    V[~pf], bl[~pf] = np.eye(3), 0.0
+    Us, Vs, bcs, bls, Dc, Dp = _z(M, d, d), _z(P, 3, 3), _z(M, d), _z(P, 3), _z(M, d), _z(P, 3)
+    if M:
+        _jac_diag_k(U, bc, Dc, Us, bcs, d)
+    if P:
+        _jac_diag_k(V, bl, Dp, Vs, bls, 3)
+    Ws = _out("Ws", O, d, 3)
+    if O:
+        _Ws_k(Jc, Jp, w, Dc, Dp, s.obs_cam, s.obs_pt, Ws, d, k)
     return Us, Vs, Ws, bcs, bls, Dc, Dp
 
 

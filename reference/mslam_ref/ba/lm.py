@@ -21,7 +21,8 @@ One iteration (g2o's schedule, as cuda-bundle-adjustment copies it):
 
 Two documented additions to g2o: a trial is accepted only when ``F_new < F`` as well as
 ``rho > 0`` (so round-off in a near-singular ``scale`` can never raise the cost), and the optional
-Jacobi scaling of Ceres (``LMConfig.jacobi_scaling``).
+Jacobi scaling of Ceres (``LMConfig.jacobi_scaling``; the blocks then come from
+``schur.scaled_normal_blocks``, which a kernel set may compute without the unscaled W).
 
 ``dx^T (lam dx + b)`` is the decrease of the Gauss-Newton model ``F - m(dx)`` at the damped step:
 with ``(H + lam I) dx = b``, ``2 dx^T b - dx^T H dx = dx^T (lam dx + b)``.
@@ -183,22 +184,24 @@ def solve_damped(
     return dc, k.schur.back_substitute(Vinv, W, bl, dc, structure)
 
 
-def _linear_system(problem: Any, kernels: Any, structure: Any, cams, points):
+def _linear_system(problem: Any, kernels: Any, structure: Any, cams, points, scaled: bool):
+    """F and the blocks ``(U, V, W, bc, bl)`` at ``(cams, points)``; Jacobi-scaled, with the
+    scales ``(Dc, Dp)``, when ``scaled`` (else None)."""
     r, Jc, Jp = problem.linearize(kernels, cams, points)
     s = problem.information * np.sum(r * r, axis=-1)
     rho, w = problem.robust(s)
-    U, V, W, bc, bl = kernels.schur.normal_blocks(r, Jc, Jp, problem.information * w, structure)
+    F, args = float(np.sum(rho)), (r, Jc, Jp, problem.information * w)
+    if scaled:
+        Us, Vs, Ws, bcs, bls, Dc, Dp = kernels.schur.scaled_normal_blocks(
+            *args, problem.cam_free, problem.point_free, structure
+        )
+        return F, (Us, Vs, Ws, bcs, bls), (Dc, Dp)
+    U, V, W, bc, bl = kernels.schur.normal_blocks(*args, structure)
     U[~problem.cam_free] = np.eye(problem.cam_dof)
     bc[~problem.cam_free] = 0.0
     V[~problem.point_free] = np.eye(3)
     bl[~problem.point_free] = 0.0
-    return float(np.sum(rho)), (U, V, W, bc, bl)
-
-
-def _jacobi_scaled(kernels: Any, blocks: tuple[FloatArray, ...], structure: Any):
-    """The Jacobi-scaled ``(U, V, W, bc, bl)`` and the scales ``(Dc, Dp)``."""
-    Us, Vs, Ws, bcs, bls, Dc, Dp = kernels.schur.jacobi_scale(*blocks, structure)
-    return (Us, Vs, Ws, bcs, bls), (Dc, Dp)
+    return F, (U, V, W, bc, bl), None
 
 
 @dataclasses.dataclass
@@ -310,10 +313,9 @@ def optimize(
     for it in range(cfg.iterations):
         blocks = D = None  # the previous system is released first: a kernel set may reuse it
         with clock("build_system"):
-            state.F, blocks = _linear_system(problem, k, st, state.cams, state.points)
-            D = None
-            if cfg.jacobi_scaling:
-                blocks, D = _jacobi_scaled(k, blocks, st)
+            state.F, blocks, D = _linear_system(
+                problem, k, st, state.cams, state.points, cfg.jacobi_scaling
+            )
         if it == 0:
             state.lam = _initial_lambda(problem, blocks, cfg.tau)
         b = np.concatenate([blocks[3].ravel(), blocks[4].ravel()])

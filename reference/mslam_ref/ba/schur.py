@@ -33,7 +33,8 @@ once per ``optimize()`` call. Unknowns that are fixed or unobserved get identity
 zero right-hand side (their step is exactly 0), which keeps every block shape static.
 
 Public names, in reading order:
-    BlockStructure, build_structure, normal_blocks, jacobi_scale, schur_complement,
+    BlockStructure, build_structure, normal_blocks, jacobi_scale, scaled_normal_blocks,
+    schur_complement,
     dense_reduced, solve_reduced, back_substitute
 
 Shapes: M cameras, P points, O observations, d camera DoF, B blocks of S, Q observation pairs.
@@ -52,7 +53,7 @@ import scipy.linalg
 import scipy.sparse
 import scipy.sparse.linalg
 
-from mslam_ref.conventions import FloatArray, IntArray
+from mslam_ref.conventions import BoolArray, FloatArray, IntArray
 
 __all__ = [
     "DENSE_MAX",
@@ -62,6 +63,7 @@ __all__ = [
     "dense_reduced",
     "jacobi_scale",
     "normal_blocks",
+    "scaled_normal_blocks",
     "schur_complement",
     "solve_reduced",
 ]
@@ -234,6 +236,31 @@ def jacobi_scale(
     Us = U * (Dc[:, :, None] * Dc[:, None, :])
     Vs = V * (Dp[:, :, None] * Dp[:, None, :])
     return Us, Vs, Ws, bc * Dc, bl * Dp, Dc, Dp
+
+
+def scaled_normal_blocks(
+    r: FloatArray,
+    J_cam: FloatArray,
+    J_pt: FloatArray,
+    weight: FloatArray,
+    cam_free: BoolArray,
+    point_free: BoolArray,
+    structure: BlockStructure,
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
+    """:func:`normal_blocks`, the blocks of unknowns that are not free set to identity with a
+    zero right-hand side, then :func:`jacobi_scale`: the LM driver's scaled system in one call.
+
+    Args:
+        r, J_cam, J_pt, weight, structure: as :func:`normal_blocks`.
+        cam_free: (M,) bool, point_free: (P,) bool.
+
+    Returns:
+        As :func:`jacobi_scale`: scaled U, V, W, bc, bl, and Dc (M, d), Dp (P, 3).
+    """
+    U, V, W, bc, bl = normal_blocks(r, J_cam, J_pt, weight, structure)
+    U[~cam_free], bc[~cam_free] = np.eye(structure.cam_dof), 0.0
+    V[~point_free], bl[~point_free] = np.eye(3), 0.0
+    return jacobi_scale(U, V, W, bc, bl, structure)
 
 
 def schur_complement(
