@@ -128,7 +128,7 @@ def main() -> None:
     kernels = load_kernels("fast").ba
     for model in ("bal", "pinhole"):  # compile the kernels before timing
         tiny, _ = synthetic.make_forward_problem(4, 30, model=model)
-        lm.optimize(tiny, lm.LMConfig(iterations=1), kernels)
+        lm.optimize(tiny, lm.LMConfig(iterations=1, jacobi_scaling=model == "bal"), kernels)
     ceres = native.ceres_binary()
     rows, profiles = [], {}
     load0 = os.getloadavg()[0]

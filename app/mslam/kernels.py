@@ -32,7 +32,14 @@ PIECES = {
     "fusion": ("update_pointmap",),
     "backend": ("solve",),
     "ba.cameras": ("bal_residuals", "bal_linearize", "pinhole_residuals", "pinhole_linearize"),
-    "ba.schur": ("normal_blocks", "jacobi_scale", "schur_complement", "back_substitute"),
+    "ba.schur": (
+        "normal_blocks",
+        "jacobi_scale",
+        "scaled_normal_blocks",
+        "schur_complement",
+        "back_substitute",
+    ),
+    "ba.reduced": ("factor_solve",),
 }
 
 
@@ -46,8 +53,8 @@ class KernelSet:
         tracking: has ``solve`` (paper §3.3).
         fusion: has ``update_pointmap`` (paper §3.3, pointmap fusion).
         backend: has ``solve`` (paper §3.5).
-        ba: a namespace with ``cameras`` and ``schur`` modules, the ``kernels`` argument of
-            ``mslam_ref.ba.lm.optimize``.
+        ba: a namespace with ``cameras``, ``schur`` and ``reduced`` modules, the ``kernels``
+            argument of ``mslam_ref.ba.lm.optimize``.
         resident: ``mslam_fast.resident`` for ``"fast"`` (matching and fusion with the
             keyframe's arrays kept on the device, docs/matching.md "Device-resident
             arrays"), None for ``"ref"``.
@@ -74,6 +81,8 @@ def load_kernels(name: str = "fast") -> KernelSet:
         )
     package = "mslam_ref" if name == "ref" else "mslam_fast"
     mods = {piece: importlib.import_module(f"{package}.{piece}") for piece in PIECES}
-    ba = SimpleNamespace(cameras=mods.pop("ba.cameras"), schur=mods.pop("ba.schur"))
+    ba = SimpleNamespace(
+        cameras=mods.pop("ba.cameras"), schur=mods.pop("ba.schur"), reduced=mods.pop("ba.reduced")
+    )
     resident = importlib.import_module("mslam_fast.resident") if name == "fast" else None
     return KernelSet(name=name, ba=ba, resident=resident, **mods)

@@ -133,6 +133,21 @@ def prepare(x: Any, name: str, trailing: int | tuple[int, ...] | None) -> npt.ND
     return np.ascontiguousarray(arr, dtype=ensure_init().dtype)
 
 
+def coerce(x: Any, name: str, trailing: int | tuple[int, ...] | None) -> npt.NDArray[Any]:
+    """:func:`prepare` without the finiteness scan, for twins whose reference computes on any
+    value (the bundle adjuster's block arrays, where a scan would read every entry once more).
+
+    Raises:
+        ValueError: on a wrong trailing shape, naming ``name``.
+    """
+    arr = np.ascontiguousarray(x, dtype=ensure_init().dtype)
+    if trailing is not None:
+        tr = (trailing,) if isinstance(trailing, int) else tuple(trailing)
+        if arr.ndim < len(tr) or arr.shape[arr.ndim - len(tr) :] != tr:
+            raise ValueError(f"{name}: expected trailing shape {tr}, got shape {arr.shape}")
+    return arr
+
+
 def flat(x: npt.NDArray[Any], batch: tuple[int, ...], k: int | tuple[int, ...]) -> npt.NDArray[Any]:
     """Broadcast ``x`` to ``(*batch, *k)`` and return it as a contiguous ``(B, *k)`` array."""
     kk = (k,) if isinstance(k, int) else tuple(k)

@@ -47,6 +47,12 @@ def test_parity_linear_system_and_step(fast: str, problem) -> None:
     jf = F.schur.jacobi_scale(*br, st)
     for a, b in zip(jf, jr):
         _close(a, b, fast, np.abs(b).max())
+    cam_free, point_free = np.arange(len(cams)) % 3 != 0, np.arange(len(pts)) % 5 != 0
+    sr = R.schur.scaled_normal_blocks(*rr, w, cam_free, point_free, st)
+    sf = F.schur.scaled_normal_blocks(*rr, w, cam_free, point_free, st)
+    assert np.all(sr[0][~cam_free] == 0.25 * np.eye(p.cam_dof))  # identity, scaled by D = 1/2
+    for a, b in zip(sf, sr):
+        _close(a, b, fast, np.abs(b).max())
     lam = 1e-2 * max(np.abs(br[0]).max(), np.abs(br[1]).max())
     sr = R.schur.schur_complement(*br, lam, st)
     sf = F.schur.schur_complement(*br, lam, st)
@@ -101,3 +107,38 @@ def test_parity_lm_banded_reduced_system(fast64: str, model: str) -> None:
     assert list(fst.profile) == list(lm.PROFILE_KEYS)
     assert fst.profile["symbolic_decomposition"] > 0.0
     assert fst.profile["numerical_decomposition"] > 0.0
+
+
+def test_recycled_outputs_are_never_shared_with_a_holder(fast64: str, problem) -> None:
+    """Large outputs are recycled only once released: a result the caller still holds (or a view
+    of it) keeps its values through later calls; a released one lends its memory to the next."""
+    import mslam_fast.ba as F
+    from mslam_fast._recycle import output
+
+    p = problem
+    cams, pts = p.params()
+    st = R.schur.build_structure(p.obs_cam, p.obs_pt, len(cams), len(pts), p.cam_dof)
+    r, Jc, Jp = p.linearize(R, cams, pts)
+    w1, w2 = np.ones(len(r)), np.full(len(r), 2.0)
+    held = F.schur.normal_blocks(r, Jc, Jp, w1, st)
+    want = R.schur.normal_blocks(r, Jc, Jp, w1, st)
+    other = F.schur.normal_blocks(r, Jc, Jp, w2, st)
+    assert other[2] is not held[2]
+    for a, b in zip(held, want):
+        _close(a, b, "f64", np.abs(b).max())
+    address = other[2].ctypes.data  # the latest W, which the pool keeps
+    del held, other
+    again = F.schur.normal_blocks(r, Jc, Jp, w2, st)
+    assert again[2].ctypes.data == address  # its memory, released and rewritten
+    _close(again[2], 2.0 * want[2], "f64", np.abs(want[2]).max())
+    a = output("test", (4, 3), np.float64)
+    view = a[1:]
+    address = a.ctypes.data
+    del a
+    assert output("test", (4, 3), np.float64).ctypes.data != address  # a view still holds it
+    del view
+    assert output("test", (4, 3), np.float64).ctypes.data != address  # replaced in the pool
+    b = output("test", (4, 3), np.float64)
+    address = b.ctypes.data
+    del b
+    assert output("test", (4, 3), np.float64).ctypes.data == address

@@ -31,12 +31,12 @@ def rodrigues(w):
 
 
 @ti.func
-def bal_project(cam, X):
-    """BAL model: P = R X + t, p = -P_xy / P_z, pixel = f (1 + k1 |p|^2 + k2 |p|^4) p.
+def bal_project(cam, R, X):
+    """BAL model: P = R X + t, p = -P_xy / P_z, pixel = f (1 + k1 |p|^2 + k2 |p|^4) p, with
+    the camera's rotation ``R = rodrigues(cam[:3])`` given (computed once per camera).
 
     Returns (pixel (2,), R (3x3), RX (3,), P (3,), p (2,), r2, d).
     """
-    R = rodrigues(ti.Vector([cam[0], cam[1], cam[2]]))
     RX = R @ X
     P = RX + ti.Vector([cam[3], cam[4], cam[5]])
     p = ti.Vector([-P[0] / P[2], -P[1] / P[2]])

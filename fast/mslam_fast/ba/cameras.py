@@ -1,8 +1,10 @@
 """Taichi twin of ``mslam_ref.ba.cameras`` — same names, parameters and shapes; see there for the maths.
 
 Each public function runs one parallel loop over the O observations (one observation per
-iteration, no reductions); projection, residual and both Jacobians are fused in one pass. Inputs
-are coerced to the runtime dtype; indices stay int64.
+iteration, no reductions); projection, residual and both Jacobians are fused in one pass. The
+BAL functions first compute each camera's rotation matrix (M items), so the observations' loop
+has no sin/cos. Inputs are coerced to the runtime dtype; indices stay int64. The residual and
+Jacobian arrays are recycled once the caller has released them (``mslam_fast._recycle``).
 """
 
 from typing import Any
@@ -11,6 +13,7 @@ import numpy as np
 import taichi as ti
 
 from mslam_fast._kernels import ba as K
+from mslam_fast._recycle import output
 from mslam_fast._runtime import ensure_init, prepare
 from mslam_fast._types import nd, template
 
@@ -30,18 +33,36 @@ def _load(A: template, i, n: template):
 
 
 @ti.kernel
-def _bal_res_k(cams: nd, pts: nd, oc: nd, op: nd, obs: nd, r: nd):
+def _bal_rot_k(cams: nd, R: nd):
+    for c in range(cams.shape[0]):  # one rotation per camera, shared by its observations
+        Rc = K.rodrigues(ti.Vector([cams[c, 0], cams[c, 1], cams[c, 2]]))
+        for i in ti.static(range(3)):
+            for j in ti.static(range(3)):
+                R[c, i, j] = Rc[i, j]
+
+
+@ti.func
+def _rot(R: template, c):
+    return ti.Matrix([[R[c, i, j] for j in ti.static(range(3))] for i in ti.static(range(3))])
+
+
+@ti.kernel
+def _bal_res_k(cams: nd, R: nd, pts: nd, oc: nd, op: nd, obs: nd, r: nd):
     for e in range(oc.shape[0]):
-        pix, _R, _RX, _P, _p, _r2, _d = K.bal_project(_load(cams, oc[e], 9), _load(pts, op[e], 3))
+        c = oc[e]
+        pix, _R, _RX, _P, _p, _r2, _d = K.bal_project(
+            _load(cams, c, 9), _rot(R, c), _load(pts, op[e], 3)
+        )
         for i in ti.static(range(2)):
             r[e, i] = pix[i] - obs[e, i]
 
 
 @ti.kernel
-def _bal_lin_k(cams: nd, pts: nd, oc: nd, op: nd, obs: nd, r: nd, Jc: nd, Jp: nd):
+def _bal_lin_k(cams: nd, Rc: nd, pts: nd, oc: nd, op: nd, obs: nd, r: nd, Jc: nd, Jp: nd):
     for e in range(oc.shape[0]):
-        cam = _load(cams, oc[e], 9)
-        pix, R, RX, P, p, r2, d = K.bal_project(cam, _load(pts, op[e], 3))
+        c = oc[e]
+        cam = _load(cams, c, 9)
+        pix, R, RX, P, p, r2, d = K.bal_project(cam, _rot(Rc, c), _load(pts, op[e], 3))
         A, B = K.bal_jacobians(cam, R, RX, P, p, r2, d)
         for i in ti.static(range(2)):
             r[e, i] = pix[i] - obs[e, i]
@@ -88,11 +109,26 @@ def _empty(*shape: int) -> Array:
     return np.zeros(shape, dtype=ensure_init().dtype)
 
 
+def _out(key: str, *shape: int) -> Array:
+    """A recycled output (``mslam_fast._recycle``): the kernels write every element."""
+    return output(key, shape, ensure_init().dtype)
+
+
+def _bal_args(cameras: Any, points: Any, obs_cam: Any, obs_pt: Any, obs: Any) -> tuple:
+    """Coerced inputs with the (M, 3, 3) camera rotations in second place."""
+    cams = prepare(cameras, "cameras", 9)
+    R = _empty(len(cams), 3, 3)
+    if len(cams):
+        _bal_rot_k(cams, R)
+    return (cams, R, prepare(points, "points", 3), _idx(obs_cam), _idx(obs_pt),
+            prepare(obs, "obs", 2))  # fmt: skip
+
+
 def bal_residuals(cameras: Any, points: Any, obs_cam: Any, obs_pt: Any, obs: Any) -> Array:
-    """Taichi twin of ``mslam_ref.ba.cameras.bal_residuals`` (parallel over O)."""
-    args = (prepare(cameras, "cameras", 9), prepare(points, "points", 3), _idx(obs_cam),
-            _idx(obs_pt), prepare(obs, "obs", 2))  # fmt: skip
-    r = _empty(len(args[2]), 2)
+    """Taichi twin of ``mslam_ref.ba.cameras.bal_residuals`` (rotations per camera, then
+    parallel over O)."""
+    args = _bal_args(cameras, points, obs_cam, obs_pt, obs)
+    r = _out("bal_r", len(args[3]), 2)
     if len(r):
         _bal_res_k(*args, r)
     return r
@@ -101,11 +137,11 @@ def bal_residuals(cameras: Any, points: Any, obs_cam: Any, obs_pt: Any, obs: Any
 def bal_linearize(
     cameras: Any, points: Any, obs_cam: Any, obs_pt: Any, obs: Any
 ) -> tuple[Array, Array, Array]:
-    """Taichi twin of ``mslam_ref.ba.cameras.bal_linearize`` (parallel over O, fused)."""
-    args = (prepare(cameras, "cameras", 9), prepare(points, "points", 3), _idx(obs_cam),
-            _idx(obs_pt), prepare(obs, "obs", 2))  # fmt: skip
-    O = len(args[2])
-    r, Jc, Jp = _empty(O, 2), _empty(O, 2, 9), _empty(O, 2, 3)
+    """Taichi twin of ``mslam_ref.ba.cameras.bal_linearize`` (rotations per camera, then
+    parallel over O, fused)."""
+    args = _bal_args(cameras, points, obs_cam, obs_pt, obs)
+    O = len(args[3])
+    r, Jc, Jp = _out("bal_lin_r", O, 2), _out("bal_Jc", O, 2, 9), _out("bal_Jp", O, 2, 3)
     if O:
         _bal_lin_k(*args, r, Jc, Jp)
     return r, Jc, Jp
@@ -120,7 +156,7 @@ def _pin_args(poses, intrinsics, points, obs_cam, obs_pt, meas, is_stereo):
 def pinhole_residuals(poses, intrinsics, points, obs_cam, obs_pt, meas, is_stereo) -> Array:
     """Taichi twin of ``mslam_ref.ba.cameras.pinhole_residuals`` (parallel over O)."""
     args = _pin_args(poses, intrinsics, points, obs_cam, obs_pt, meas, is_stereo)
-    r = _empty(len(args[3]), 3)
+    r = _out("pin_r", len(args[3]), 3)
     if len(r):
         _pin_res_k(*args, r)
     return r
@@ -132,7 +168,7 @@ def pinhole_linearize(
     """Taichi twin of ``mslam_ref.ba.cameras.pinhole_linearize`` (parallel over O, fused)."""
     args = _pin_args(poses, intrinsics, points, obs_cam, obs_pt, meas, is_stereo)
     O = len(args[3])
-    r, Jc, Jp = _empty(O, 3), _empty(O, 3, 6), _empty(O, 3, 3)
+    r, Jc, Jp = _out("pin_lin_r", O, 3), _out("pin_Jc", O, 3, 6), _out("pin_Jp", O, 3, 3)
     if O:
         _pin_lin_k(*args, r, Jc, Jp)
     return r, Jc, Jp

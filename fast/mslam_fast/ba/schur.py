@@ -3,16 +3,21 @@
 Parallel axes and reductions (no atomics anywhere; every sum runs in a ``ti.f64`` local over a
 CSR list built once by ``build_structure``, so results are deterministic):
 
-* ``normal_blocks``: W per observation (O items); U and bc per (camera, row) (M d items, each
-  summing the camera's observations); V and bl per point (P items).
+* ``normal_blocks``: W per observation (O items); U (its upper triangle, mirrored) and bc per
+  camera (M items, each summing the camera's observations); V and bl per point (P items).
 * ``jacobi_scale``: D and the scaled U, bc per camera (M items), V, bl per point (P items), W per
   observation (O items).
+* ``scaled_normal_blocks``: U/bc and V/bl as above, then D and the scaled blocks; the scaled W
+  per observation from the Jacobians (O items), with no unscaled W in memory.
 * ``schur_complement``: V^-1 per point (adjugate, P items); Y = W V^-1 and Y bl per observation
-  (O items); rhs per (camera, row); S per (block, row) over the block's observation pairs
-  (B d items).
+  (O items); rhs per (camera, row); S per block over the block's observation pairs (B items;
+  a diagonal block sums its upper triangle only and mirrors it).
 * ``back_substitute``: one point per item (P items).
 
-``build_structure``, ``dense_reduced`` and ``solve_reduced`` have no kernel (host set-up and a
+The large outputs (W, the scaled W, S, Vinv) are recycled once the caller has released them
+(``mslam_fast._recycle``). Inputs are coerced to the runtime dtype and their shapes checked, not scanned for NaN/inf: the
+reference computes on any value (a singular damped V_j gives ``inf`` in Vinv, and the solve
+fails later). ``build_structure``, ``dense_reduced`` and ``solve_reduced`` have no kernel (host set-up and a
 SciPy/LAPACK Cholesky): the LM driver calls ``mslam_ref.ba.schur``'s.
 """
 
@@ -23,7 +28,8 @@ import taichi as ti
 
 from mslam_fast._kernels import ba as K
 from mslam_fast._matching_host import _kept, _zeros
-from mslam_fast._runtime import ensure_init, prepare
+from mslam_fast._recycle import output
+from mslam_fast._runtime import coerce, ensure_init
 from mslam_fast._types import f64, nd, template
 from mslam_ref.ba.schur import BlockStructure
 
@@ -31,6 +37,7 @@ __all__ = [
     "back_substitute",
     "jacobi_scale",
     "normal_blocks",
+    "scaled_normal_blocks",
     "schur_complement",
 ]
 
@@ -52,18 +59,22 @@ def _W_k(Jc: nd, Jp: nd, w: nd, W: nd, d: template, k: template):
 def _U_k(Jc: nd, w: nd, r: nd, ptr: nd, order: nd, U: nd, bc: nd, d: template,
          k: template):  # fmt: skip
     for c in range(U.shape[0]):  # one camera per item, its observations in CSR order
-        acc = ti.Matrix.zero(f64, d, d)
+        acc = ti.Matrix.zero(f64, d, d)  # upper triangle only, mirrored at the end
         accb = ti.Vector.zero(f64, d)
         for q in range(ti.cast(ptr[c], ti.i32), ti.cast(ptr[c + 1], ti.i32)):
             e = order[q]
             we = ti.cast(w[e], f64)
             for m in ti.static(range(k)):
                 J = ti.Vector([ti.cast(Jc[e, m, i], f64) for i in ti.static(range(d))])
-                acc += (we * J).outer_product(J)
-                accb += (we * r[e, m]) * J
+                wJ = we * J
+                for i in ti.static(range(d)):
+                    for j in ti.static(range(i, d)):
+                        acc[i, j] += wJ[i] * J[j]
+                accb += r[e, m] * wJ
         for i in ti.static(range(d)):
-            for j in ti.static(range(d)):
+            for j in ti.static(range(i, d)):
                 U[c, i, j] = acc[i, j]
+                U[c, j, i] = acc[i, j]
             bc[c, i] = -accb[i]
 
 
@@ -108,6 +119,19 @@ def _jac_W_k(W: nd, Dc: nd, Dp: nd, oc: nd, op: nd, Ws: nd, d: template):
 
 
 @ti.kernel
+def _Ws_k(Jc: nd, Jp: nd, w: nd, Dc: nd, Dp: nd, oc: nd, op: nd, Ws: nd, d: template,
+          k: template):  # fmt: skip
+    for e in range(Jc.shape[0]):  # W_e = J_c^T w J_p scaled by Dc and Dp, never stored unscaled
+        c, p = oc[e], op[e]
+        for i in ti.static(range(d)):
+            for j in ti.static(range(3)):
+                acc = ti.cast(0.0, f64)
+                for m in ti.static(range(k)):
+                    acc += ti.cast(Jc[e, m, i] * Jp[e, m, j], f64)
+                Ws[e, i, j] = acc * w[e] * Dc[c, i] * Dp[p, j]
+
+
+@ti.kernel
 def _vinv_k(V: nd, lam: f64, Vinv: nd):
     for p in range(V.shape[0]):
         A = ti.Matrix.zero(f64, 3, 3)
@@ -145,24 +169,41 @@ def _rhs_k(bc: nd, t: nd, ptr: nd, order: nd, rhs: nd):
         rhs[c, i] = bc[c, i] - acc
 
 
+@ti.func
+def _S_pairs(Y: template, W: template, pptr: template, pa: template, pb: template, b,
+             d: template, upper: template):  # fmt: skip
+    """-sum over the block's pairs of Y_a W_b^T (d x d, f64); only i <= j when ``upper``."""
+    acc = ti.Matrix.zero(f64, d, d)
+    for q in range(ti.cast(pptr[b], ti.i32), ti.cast(pptr[b + 1], ti.i32)):
+        a, c = pa[q], pb[q]
+        for i in ti.static(range(d)):
+            y0, y1, y2 = (
+                ti.cast(Y[a, i, 0], f64),
+                ti.cast(Y[a, i, 1], f64),
+                ti.cast(Y[a, i, 2], f64),
+            )
+            for j in ti.static(range(i if ti.static(upper) else 0, d)):
+                acc[i, j] -= y0 * W[c, j, 0] + y1 * W[c, j, 1] + y2 * W[c, j, 2]
+    return acc
+
+
 @ti.kernel
 def _S_k(Y: nd, W: nd, U: nd, lam: f64, brow: nd, bcol: nd, pptr: nd, pa: nd, pb: nd, S: nd,
          d: template):  # fmt: skip
     for b in range(S.shape[0]):  # one d x d block per item: Y and W blocks are loaded once
-        acc = ti.Matrix.zero(f64, d, d)
-        for q in range(ti.cast(pptr[b], ti.i32), ti.cast(pptr[b + 1], ti.i32)):
-            a, c = pa[q], pb[q]
-            y = ti.Matrix([[Y[a, i, m] for m in ti.static(range(3))] for i in ti.static(range(d))])
-            w = ti.Matrix([[W[c, j, m] for m in ti.static(range(3))] for j in ti.static(range(d))])
-            acc -= ti.cast(y, f64) @ ti.cast(w, f64).transpose()
-        if brow[b] == bcol[b]:
+        c = brow[b]
+        if c == bcol[b]:  # diagonal block: symmetric, its upper triangle mirrored
+            acc = _S_pairs(Y, W, pptr, pa, pb, b, d, True)
+            for i in ti.static(range(d)):
+                for j in ti.static(range(i, d)):
+                    v = acc[i, j] + U[c, i, j] + (lam if i == j else 0.0)
+                    S[b, i, j] = v
+                    S[b, j, i] = v
+        else:
+            acc = _S_pairs(Y, W, pptr, pa, pb, b, d, False)
             for i in ti.static(range(d)):
                 for j in ti.static(range(d)):
-                    acc[i, j] += U[brow[b], i, j]
-                acc[i, i] += lam
-        for i in ti.static(range(d)):
-            for j in ti.static(range(d)):
-                S[b, i, j] = acc[i, j]
+                    S[b, i, j] = acc[i, j]
 
 
 @ti.kernel
@@ -186,18 +227,23 @@ def _z(*shape: int) -> Array:
     return np.zeros(shape, dtype=ensure_init().dtype)
 
 
+def _out(key: str, *shape: int) -> Array:
+    """A recycled output (``mslam_fast._recycle``): the kernels write every element."""
+    return output(key, shape, ensure_init().dtype)
+
+
 def normal_blocks(
     r: Any, J_cam: Any, J_pt: Any, weight: Any, structure: BlockStructure
 ) -> tuple[Array, Array, Array, Array, Array]:
     """Taichi twin of ``mslam_ref.ba.schur.normal_blocks`` (W per observation, U/bc per
     (camera, row), V/bl per point; f64 accumulation over CSR lists, no atomics)."""
     s, d = structure, structure.cam_dof
-    r = prepare(r, "r", None)
+    r = coerce(r, "r", None)
     k = r.shape[1]
-    Jc, Jp = prepare(J_cam, "J_cam", (k, d)), prepare(J_pt, "J_pt", (k, 3))
-    w = prepare(weight, "weight", None)
+    Jc, Jp = coerce(J_cam, "J_cam", (k, d)), coerce(J_pt, "J_pt", (k, 3))
+    w = coerce(weight, "weight", None)
     O, M, P = len(r), s.n_cams, s.n_points
-    U, V, W, bc, bl = _z(M, d, d), _z(P, 3, 3), _z(O, d, 3), _z(M, d), _z(P, 3)
+    U, V, W, bc, bl = _z(M, d, d), _z(P, 3, 3), _out("W", O, d, 3), _z(M, d), _z(P, 3)
     if O:
         _W_k(Jc, Jp, w, W, d, k)
         _U_k(Jc, w, r, s.cam_ptr, s.cam_obs, U, bc, d, k)
@@ -211,10 +257,10 @@ def jacobi_scale(
     """Taichi twin of ``mslam_ref.ba.schur.jacobi_scale`` (per camera, per point, per
     observation; no reductions)."""
     s, d = structure, structure.cam_dof
-    U, V = prepare(U, "U", (d, d)), prepare(V, "V", (3, 3))
-    W, bc, bl = prepare(W, "W", (d, 3)), prepare(bc, "bc", d), prepare(bl, "bl", 3)
+    U, V = coerce(U, "U", (d, d)), coerce(V, "V", (3, 3))
+    W, bc, bl = coerce(W, "W", (d, 3)), coerce(bc, "bc", d), coerce(bl, "bl", 3)
     M, P, O = len(U), len(V), len(W)
-    Us, Vs, Ws, bcs, bls, Dc, Dp = (_z(M, d, d), _z(P, 3, 3), _z(O, d, 3), _z(M, d), _z(P, 3),
+    Us, Vs, Ws, bcs, bls, Dc, Dp = (_z(M, d, d), _z(P, 3, 3), _out("Ws", O, d, 3), _z(M, d), _z(P, 3),
                                     _z(M, d), _z(P, 3))  # fmt: skip
     if M:
         _jac_diag_k(U, bc, Dc, Us, bcs, d)
@@ -225,20 +271,56 @@ def jacobi_scale(
     return Us, Vs, Ws, bcs, bls, Dc, Dp
 
 
+def scaled_normal_blocks(
+    r: Any,
+    J_cam: Any,
+    J_pt: Any,
+    weight: Any,
+    cam_free: Any,
+    point_free: Any,
+    structure: BlockStructure,
+) -> tuple[Array, Array, Array, Array, Array, Array, Array]:
+    """Taichi twin of ``mslam_ref.ba.schur.scaled_normal_blocks`` (U/bc per camera, V/bl per
+    point, masked and scaled on their small arrays; the scaled W per observation straight from
+    the Jacobians, so the unscaled W is never stored)."""
+    s, d = structure, structure.cam_dof
+    r = coerce(r, "r", None)
+    k = r.shape[1]
+    Jc, Jp = coerce(J_cam, "J_cam", (k, d)), coerce(J_pt, "J_pt", (k, 3))
+    w = coerce(weight, "weight", None)
+    O, M, P = len(r), s.n_cams, s.n_points
+    U, V, bc, bl = _z(M, d, d), _z(P, 3, 3), _z(M, d), _z(P, 3)
+    if O:
+        _U_k(Jc, w, r, s.cam_ptr, s.cam_obs, U, bc, d, k)
+        _V_k(Jp, w, r, s.pt_ptr, s.pt_obs, V, bl, k)
+    cf, pf = np.asarray(cam_free, bool), np.asarray(point_free, bool)
+    U[~cf], bc[~cf] = np.eye(d), 0.0
+    V[~pf], bl[~pf] = np.eye(3), 0.0
+    Us, Vs, bcs, bls, Dc, Dp = _z(M, d, d), _z(P, 3, 3), _z(M, d), _z(P, 3), _z(M, d), _z(P, 3)
+    if M:
+        _jac_diag_k(U, bc, Dc, Us, bcs, d)
+    if P:
+        _jac_diag_k(V, bl, Dp, Vs, bls, 3)
+    Ws = _out("Ws", O, d, 3)
+    if O:
+        _Ws_k(Jc, Jp, w, Dc, Dp, s.obs_cam, s.obs_pt, Ws, d, k)
+    return Us, Vs, Ws, bcs, bls, Dc, Dp
+
+
 def schur_complement(
     U: Any, V: Any, W: Any, bc: Any, bl: Any, lam: float, structure: BlockStructure
 ) -> tuple[Array, Array, Array]:
     """Taichi twin of ``mslam_ref.ba.schur.schur_complement`` (V^-1 per point, Y per
     observation, rhs per (camera, row), S per (block, row) over its pair list; f64 sums)."""
     s, d = structure, structure.cam_dof
-    U, V = prepare(U, "U", (d, d)), prepare(V, "V", (3, 3))
-    W, bc, bl = prepare(W, "W", (d, 3)), prepare(bc, "bc", d), prepare(bl, "bl", 3)
+    U, V = coerce(U, "U", (d, d)), coerce(V, "V", (3, 3))
+    W, bc, bl = coerce(W, "W", (d, 3)), coerce(bc, "bc", d), coerce(bl, "bl", 3)
     O, M, P = len(W), s.n_cams, s.n_points
-    Vinv, rhs = _z(P, 3, 3), _z(M, d)
+    Vinv, rhs = _out("Vinv", P, 3, 3), _z(M, d)
     # Y and t are written whole before they are read: kept per thread and shape (fresh pages
     # cost a fault each; on CUDA they stay in GPU memory)
     Y, t = _kept(("ba_Y", O, d), lambda: (_zeros((O, d, 3)), _zeros((O, d))))
-    S = _z(len(s.block_row), d, d)
+    S = _out("S", len(s.block_row), d, d)
     if P:
         _vinv_k(V, float(lam), Vinv)
     if O:
@@ -251,8 +333,8 @@ def schur_complement(
 def back_substitute(Vinv: Any, W: Any, bl: Any, dc: Any, structure: BlockStructure) -> Array:
     """Taichi twin of ``mslam_ref.ba.schur.back_substitute`` (one point per item)."""
     s, d = structure, structure.cam_dof
-    Vinv, W = prepare(Vinv, "Vinv", (3, 3)), prepare(W, "W", (d, 3))
-    bl, dc = prepare(bl, "bl", 3), prepare(dc, "dc", d)
+    Vinv, W = coerce(Vinv, "Vinv", (3, 3)), coerce(W, "W", (d, 3))
+    bl, dc = coerce(bl, "bl", 3), coerce(dc, "dc", d)
     dl = _z(s.n_points, 3)
     if s.n_points:
         _back_k(Vinv, W, bl, dc, s.pt_ptr, s.pt_obs, s.obs_cam, dl, d)

@@ -21,7 +21,8 @@ One iteration (g2o's schedule, as cuda-bundle-adjustment copies it):
 
 Two documented additions to g2o: a trial is accepted only when ``F_new < F`` as well as
 ``rho > 0`` (so round-off in a near-singular ``scale`` can never raise the cost), and the optional
-Jacobi scaling of Ceres (``LMConfig.jacobi_scaling``).
+Jacobi scaling of Ceres (``LMConfig.jacobi_scaling``; the blocks then come from
+``schur.scaled_normal_blocks``, which a kernel set may compute without the unscaled W).
 
 ``dx^T (lam dx + b)`` is the decrease of the Gauss-Newton model ``F - m(dx)`` at the damped step:
 with ``(H + lam I) dx = b``, ``2 dx^T b - dx^T H dx = dx^T (lam dx + b)``.
@@ -31,7 +32,7 @@ The driver is shared by both kernel sets: ``kernels`` is any object with ``camer
 ``mslam_fast.ba`` (the application's kernel set passes one). The reduced camera system is
 analysed once per call (``reduced.analyse``: ordering and storage, the "symbolic_decomposition"
 stage) and refactored every trial (``reduced.factor_solve``, "numerical_decomposition"), by the
-kernel set's ``reduced`` module when it has one, else ``mslam_ref.ba.reduced``.
+kernel set's ``reduced`` functions where it has them, else ``mslam_ref.ba.reduced``'s.
 
 Public names, in reading order: LMConfig, LMResult, PROFILE_KEYS, robust_chi2, solve_damped,
 optimize.
@@ -144,11 +145,14 @@ def robust_chi2(problem: Any, kernels: Any, cams: FloatArray, points: FloatArray
     return float(np.sum(problem.robust(s)[0]))
 
 
-def _check_finite_start(problem: Any, cams: FloatArray, points: FloatArray) -> None:
+def _check_finite_start(problem: Any, kernels: Any, cams: FloatArray, points: FloatArray) -> None:
     """``ValueError`` naming the first observation whose residual is not finite at the start
-    (a point at a camera centre, depth 0). Evaluated with the reference kernels, so both
-    kernel sets give the same error before any of their kernels runs."""
+    (a point at a camera centre, depth 0). Screened with the kernel set's residuals; when one is
+    not finite, the message comes from the reference kernels' residuals, so both kernel sets give
+    the same error before any of their steps runs."""
     with np.errstate(all="ignore"):
+        if np.all(np.isfinite(problem.residuals(kernels, cams, points))):
+            return
         r = problem.residuals(_default_kernels(), cams, points)
     bad = np.flatnonzero(~np.all(np.isfinite(r), axis=-1))
     if bad.size:
@@ -180,16 +184,24 @@ def solve_damped(
     return dc, k.schur.back_substitute(Vinv, W, bl, dc, structure)
 
 
-def _linear_system(problem: Any, kernels: Any, structure: Any, cams, points):
+def _linear_system(problem: Any, kernels: Any, structure: Any, cams, points, scaled: bool):
+    """F and the blocks ``(U, V, W, bc, bl)`` at ``(cams, points)``; Jacobi-scaled, with the
+    scales ``(Dc, Dp)``, when ``scaled`` (else None)."""
     r, Jc, Jp = problem.linearize(kernels, cams, points)
     s = problem.information * np.sum(r * r, axis=-1)
     rho, w = problem.robust(s)
-    U, V, W, bc, bl = kernels.schur.normal_blocks(r, Jc, Jp, problem.information * w, structure)
+    F, args = float(np.sum(rho)), (r, Jc, Jp, problem.information * w)
+    if scaled:
+        Us, Vs, Ws, bcs, bls, Dc, Dp = kernels.schur.scaled_normal_blocks(
+            *args, problem.cam_free, problem.point_free, structure
+        )
+        return F, (Us, Vs, Ws, bcs, bls), (Dc, Dp)
+    U, V, W, bc, bl = kernels.schur.normal_blocks(*args, structure)
     U[~problem.cam_free] = np.eye(problem.cam_dof)
     bc[~problem.cam_free] = 0.0
     V[~problem.point_free] = np.eye(3)
     bl[~problem.point_free] = 0.0
-    return float(np.sum(rho)), (U, V, W, bc, bl)
+    return F, (U, V, W, bc, bl), None
 
 
 @dataclasses.dataclass
@@ -214,8 +226,13 @@ def _initial_lambda(problem: Any, blocks: tuple[FloatArray, ...], tau: float) ->
 
 
 def _reduced_solver(kernels: Any) -> Any:
-    """The kernel set's ``reduced`` module (analyse, factor_solve), else the reference's."""
-    return getattr(kernels, "reduced", None) or _reduced
+    """``analyse`` and ``factor_solve``: the kernel set's ``reduced`` functions where it has
+    them, else the reference's."""
+    mod = getattr(kernels, "reduced", None)
+    return SimpleNamespace(
+        analyse=getattr(mod, "analyse", _reduced.analyse),
+        factor_solve=getattr(mod, "factor_solve", _reduced.factor_solve),
+    )
 
 
 def _trial(problem, k, st, state: _State, blocks, D, b, clock: StageClock) -> tuple[float, Any]:
@@ -283,7 +300,7 @@ def optimize(
     clock = clock if clock is not None else StageClock(PROFILE_KEYS)
     with clock("initialize"):
         cams, points = problem.params()
-        _check_finite_start(problem, cams, points)
+        _check_finite_start(problem, k, cams, points)
     with clock("build_structure"):
         st = _schur.build_structure(
             problem.obs_cam, problem.obs_pt, len(cams), len(points), problem.cam_dof
@@ -294,12 +311,11 @@ def optimize(
         state = _State(cams, points, robust_chi2(problem, k, cams, points))
     F0, history, stop = state.F, [], "iterations"
     for it in range(cfg.iterations):
+        blocks = D = None  # the previous system is released first: a kernel set may reuse it
         with clock("build_system"):
-            state.F, blocks = _linear_system(problem, k, st, state.cams, state.points)
-            D = None
-            if cfg.jacobi_scaling:
-                *scaled, Dc, Dp = k.schur.jacobi_scale(*blocks, st)
-                blocks, D = tuple(scaled), (Dc, Dp)
+            state.F, blocks, D = _linear_system(
+                problem, k, st, state.cams, state.points, cfg.jacobi_scaling
+            )
         if it == 0:
             state.lam = _initial_lambda(problem, blocks, cfg.tau)
         b = np.concatenate([blocks[3].ravel(), blocks[4].ravel()])

@@ -33,7 +33,8 @@ once per ``optimize()`` call. Unknowns that are fixed or unobserved get identity
 zero right-hand side (their step is exactly 0), which keeps every block shape static.
 
 Public names, in reading order:
-    BlockStructure, build_structure, normal_blocks, jacobi_scale, schur_complement,
+    BlockStructure, build_structure, normal_blocks, jacobi_scale, scaled_normal_blocks,
+    schur_complement,
     dense_reduced, solve_reduced, back_substitute
 
 Shapes: M cameras, P points, O observations, d camera DoF, B blocks of S, Q observation pairs.
@@ -52,7 +53,7 @@ import scipy.linalg
 import scipy.sparse
 import scipy.sparse.linalg
 
-from mslam_ref.conventions import FloatArray, IntArray
+from mslam_ref.conventions import BoolArray, FloatArray, IntArray
 
 __all__ = [
     "DENSE_MAX",
@@ -62,6 +63,7 @@ __all__ = [
     "dense_reduced",
     "jacobi_scale",
     "normal_blocks",
+    "scaled_normal_blocks",
     "schur_complement",
     "solve_reduced",
 ]
@@ -144,18 +146,20 @@ def build_structure(
     a, b = pt_obs[a_pos], pt_obs[b_pos]
     ca, cb = obs_cam[a], obs_cam[b]
     keep = ca <= cb
-    a, b, ca, cb = a[keep], b[keep], ca[keep], cb[keep]
-    diag = np.arange(n_cams)
-    keys = np.unique(np.concatenate([ca * n_cams + cb, diag * n_cams + diag]))
-    blk = np.searchsorted(keys, ca * n_cams + cb)
-    pair_ptr, order = _csr(blk, len(keys))
-    block_row, block_col = keys // n_cams, keys % n_cams
+    a, b, pair_key = a[keep], b[keep], ca[keep] * n_cams + cb[keep]
+    # one stable sort groups the pairs by block; the blocks are the distinct keys plus every
+    # diagonal block (empty for a camera without observations)
+    order = np.argsort(pair_key, kind="stable")
+    pair_key = pair_key[order]
+    diag = np.arange(n_cams) * (n_cams + 1)
+    keys = np.union1d(pair_key[np.diff(pair_key, prepend=-1) != 0], diag)
+    pair_ptr = np.searchsorted(pair_key, np.r_[keys, n_cams * n_cams])
     return BlockStructure(
         n_cams=n_cams, n_points=n_points, cam_dof=cam_dof, obs_cam=obs_cam, obs_pt=obs_pt,
         cam_ptr=cam_ptr, cam_obs=cam_obs, pt_ptr=pt_ptr, pt_obs=pt_obs,
-        block_row=block_row, block_col=block_col,
-        diag_block=np.searchsorted(keys, diag * n_cams + diag),
-        pair_ptr=pair_ptr, pair_a=a[order], pair_b=b[order],
+        block_row=keys // n_cams, block_col=keys % n_cams,
+        diag_block=np.searchsorted(keys, diag),
+        pair_ptr=np.asarray(pair_ptr, np.int64), pair_a=a[order], pair_b=b[order],
     )  # fmt: skip
 
 
@@ -232,6 +236,31 @@ def jacobi_scale(
     Us = U * (Dc[:, :, None] * Dc[:, None, :])
     Vs = V * (Dp[:, :, None] * Dp[:, None, :])
     return Us, Vs, Ws, bc * Dc, bl * Dp, Dc, Dp
+
+
+def scaled_normal_blocks(
+    r: FloatArray,
+    J_cam: FloatArray,
+    J_pt: FloatArray,
+    weight: FloatArray,
+    cam_free: BoolArray,
+    point_free: BoolArray,
+    structure: BlockStructure,
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
+    """:func:`normal_blocks`, the blocks of unknowns that are not free set to identity with a
+    zero right-hand side, then :func:`jacobi_scale`: the LM driver's scaled system in one call.
+
+    Args:
+        r, J_cam, J_pt, weight, structure: as :func:`normal_blocks`.
+        cam_free: (M,) bool, point_free: (P,) bool.
+
+    Returns:
+        As :func:`jacobi_scale`: scaled U, V, W, bc, bl, and Dc (M, d), Dp (P, 3).
+    """
+    U, V, W, bc, bl = normal_blocks(r, J_cam, J_pt, weight, structure)
+    U[~cam_free], bc[~cam_free] = np.eye(structure.cam_dof), 0.0
+    V[~point_free], bl[~point_free] = np.eye(3), 0.0
+    return jacobi_scale(U, V, W, bc, bl, structure)
 
 
 def schur_complement(
