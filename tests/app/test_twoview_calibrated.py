@@ -108,3 +108,28 @@ def test_twoview_config_keeps_untriangulated_pixels_out_of_the_pose_solves(loop_
     valid_opt, _ = tracking.tracking_masks(np.ones(n, bool), C_f[idx_f2k], C_k, Q, cfg.tracking())
     assert not valid_opt[filled_f | filled_k].any()
     assert valid_opt[~(filled_f | filled_k)].all()
+
+
+def test_a_frame_without_confident_pixels_is_tracked_not_lost():
+    """With ``tracking.C_conf = 1`` and a prior that triangulated nothing (``C = 1`` everywhere),
+    tracking falls back to every matched pixel instead of losing each frame."""
+    import dataclasses
+
+    from mslam.kernels import load_kernels
+    from mslam.system import open_source
+    from mslam.system.frontend import SlamSystem
+
+    cfg = load_config(None, ["tracking.C_conf=1.0"])
+    src = open_source("synthetic:loop:24:64x48", cfg)
+    prior, pair, mono = src.prior, src.prior.pair, src.prior.mono
+
+    def pair_floor(fi, fj):
+        p = pair(fi, fj)
+        return dataclasses.replace(p, C_ii=np.ones_like(p.C_ii), C_ji=np.ones_like(p.C_ji))
+
+    prior.pair = pair_floor
+    prior.mono = lambda f: (mono(f)[0], np.ones(f.shape))
+    system = SlamSystem(prior, cfg, load_kernels("ref"), src.K)
+    statuses = [system.process(src.sequence[i]) for i in range(10)]
+    assert statuses[0] == "keyframe"
+    assert set(statuses[1:]) <= {"tracked", "keyframe"} and "tracked" in statuses
