@@ -5,7 +5,9 @@ decode of the pair (frame, keyframe) in the keyframe's camera:
 
 1. matching (paper §3.2) of the frame's points into the keyframe, initialised with the previous
    frame's ``idx_f2k``;
-2. the masks of docs/upstream.md §5.1 (match, confidence and quality);
+2. the masks of docs/upstream.md §5.1 (match, confidence and quality); when the confidence
+   threshold ``C_conf`` leaves fewer than ``min_match_frac`` of the pixels, every matched
+   pixel of sufficient quality is used instead (the frame is not lost for it);
 3. the IRLS Gauss–Newton on ``T_CkCf`` (ray+distance, or calibrated pixels+depth), from the
    constant-position guess;
 4. fusion of the keyframe's canonical pointmap with ``X_kk = T_CkCf · X_kf`` (paper Eq. 8);
@@ -19,6 +21,7 @@ Public names, in reading order:
 
 from __future__ import annotations
 
+import dataclasses
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -158,6 +161,11 @@ class Tracker:
             C_f = np.asarray(fusion.average_confidence(state_f)).reshape(-1)[idx_f2k[s]]
             C_k = np.asarray(fusion.average_confidence(kf.state)).reshape(-1)[s]
             valid_opt, valid_kf = tracking.tracking_masks(valid_match_k[s], C_f, C_k, Q_k, cfg)
+            if float(np.mean(valid_opt[on])) < cfg.min_match_frac and cfg.C_conf > 0:
+                # Too few confident pixels (e.g. a prior that triangulated little of a narrow
+                # view): the frame is tracked on every matched pixel rather than lost.
+                cfg = dataclasses.replace(cfg, C_conf=0.0)
+                valid_opt, valid_kf = tracking.tracking_masks(valid_match_k[s], C_f, C_k, Q_k, cfg)
             if float(np.mean(valid_opt[on])) < cfg.min_match_frac:
                 return None
             T_init = sim3.mul(sim3.inv(kf.T_WC), T_WC_last)
