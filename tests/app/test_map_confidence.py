@@ -1,0 +1,66 @@
+"""Map points: confidence of the two-view prior, filled points kept out of fusion and export."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mslam.datasets.synthetic import make_sequence
+from mslam.priors.base import NO_INFO_C
+from mslam.priors.twoview import TwoViewPrior
+from mslam.system.outputs import C_CONF_THRESHOLD
+from mslam.system.tracker import without_filler
+from mslam_ref import fusion
+
+W, H = 128, 96
+
+
+@pytest.fixture(scope="module")
+def seq():
+    # The forward path at 128x96: pixels near the border leave the next image (filled).
+    return make_sequence("forward", n_frames=40, width=W, height=H, seed=0)
+
+
+@pytest.mark.parametrize("calibrated", [True, False])
+def test_confidence_orders_the_depth_error(seq, calibrated):
+    """Exported points (C > threshold) have a smaller depth error than the points under the
+    threshold, and those a smaller one than the filled points, which have the lowest C."""
+    prior = TwoViewPrior(seq.K, (W, H)) if calibrated else TwoViewPrior()
+    p = prior.pair(seq[0], seq[4])
+    assert prior.last_status == "ok"
+    C, z_est, z = p.C_ii, p.X_ii[..., 2], seq[0].depth
+    filled = C == NO_INFO_C
+    above = C > C_CONF_THRESHOLD
+    below = ~above & ~filled
+    assert np.all(C >= NO_INFO_C) and filled.any() and below.any() and above.mean() > 0.5
+    # Filled points copy the depth of a triangulated pixel (nearest fill): no new depth.
+    assert np.all(np.isin(z_est[filled], z_est[~filled]))
+    rel = np.abs(np.median(z / z_est) * z_est - z) / z
+    assert np.median(rel[above]) < np.median(rel[below]) < np.median(rel[filled])
+
+
+def _state(X, C):
+    return fusion.init_pointmap(np.asarray(X, float), np.asarray(C, float))
+
+
+def test_a_filled_point_does_not_move_the_fused_point():
+    state = _state([[0.0, 0.0, 2.0], [0.0, 0.0, 3.0]], [5.0, 5.0])
+    X_new = np.array([[0.0, 0.0, 9.0], [0.0, 0.0, 4.0]])
+    C_new = np.array([NO_INFO_C, 5.0])
+    s, X = without_filler(state, X_new, C_new)
+    out = fusion.update_pointmap(s, X, C_new)
+    assert out.X_canon[0, 2] == 2.0  # the filled 9 m is not averaged in
+    assert out.X_canon[1, 2] == 3.5  # a measured point is
+    assert np.all(state.X_canon == [[0.0, 0.0, 2.0], [0.0, 0.0, 3.0]])  # input untouched
+
+
+def test_a_measured_point_replaces_filler_and_filler_alone_stays_unexported():
+    state = _state([[0.0, 0.0, 7.0], [0.0, 0.0, 7.0]], [NO_INFO_C, NO_INFO_C])
+    X_new = np.array([[0.0, 0.0, 2.0], [0.0, 0.0, 8.0]])
+    C_new = np.array([6.0, NO_INFO_C])
+    s, X = without_filler(state, X_new, C_new)
+    out = fusion.update_pointmap(s, X, C_new)
+    assert out.X_canon[0, 2] == 2.0  # the measurement, not a mix with the filled 7 m
+    C_avg = fusion.average_confidence(out)
+    assert C_avg[0] > C_CONF_THRESHOLD  # exported
+    assert C_avg[1] == NO_INFO_C  # never measured: below any export threshold >= 1
