@@ -64,3 +64,33 @@ def test_a_measured_point_replaces_filler_and_filler_alone_stays_unexported():
     C_avg = fusion.average_confidence(out)
     assert C_avg[0] > C_CONF_THRESHOLD  # exported
     assert C_avg[1] == NO_INFO_C  # never measured: below any export threshold >= 1
+
+
+def test_tracking_fuses_upstreams_average_and_the_map_fuses_without_filler():
+    """``Keyframe.state`` stays paper Eq. 8 (filled points included, as upstream); the map's
+    ``Keyframe.X_map`` is the same average without them, with the same ``C`` and ``N``."""
+    import threading
+
+    from mslam.config import load_config
+    from mslam.kernels import load_kernels
+    from mslam.priors.base import PairPrediction
+    from mslam.system.keyframes import Keyframe
+    from mslam.system.state import RunStats
+    from mslam.system.tracker import Tracker
+    from mslam_ref import sim3
+
+    h, w = 1, 2
+    X0 = np.array([[[0.0, 0.0, 2.0], [0.0, 0.0, 3.0]]])
+    kf = Keyframe(
+        frame=None, T_WC=sim3.identity(), state=_state(X0.reshape(-1, 3), [5.0, 5.0]), shape=(h, w)
+    )
+    X_new = np.array([[[0.0, 0.0, 8.0], [0.0, 0.0, 4.0]]])
+    C_new = np.array([[NO_INFO_C, 5.0]])
+    D, Q = np.ones((h, w, 1)), np.ones((h, w))
+    p = PairPrediction(X_new, C_new, D, Q, X_new, C_new, D, Q)
+    tracker = Tracker(load_config("base"), load_kernels("ref"), None, RunStats(), threading.RLock())
+    tracker._fuse(kf, p, sim3.identity())
+    assert kf.state.X_canon[0, 2] == 3.0  # (5 * 2 + 1 * 8) / 6: the filled 8 m pulls
+    assert kf.X_map[0, 2] == 2.0  # the map ignores it
+    assert kf.X_map[1, 2] == kf.state.X_canon[1, 2] == 3.5
+    assert kf.state.N == 2 and np.all(kf.state.C == [6.0, 10.0])

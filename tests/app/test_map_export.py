@@ -11,6 +11,9 @@ from mslam.config import load_config
 from mslam.system.outputs import C_CONF_THRESHOLD, reconstruction_points
 from mslam_ref import sim3
 
+#: Offset of the stub's tracked pointmap from its map points (an export of it would show).
+TRACKED_OFFSET = 100.0
+
 
 class _Keyframes(list):
     """The two things the export reads from the keyframe store: iteration and pointmaps."""
@@ -19,8 +22,9 @@ class _Keyframes(list):
         super().__init__(kfs)
         self.X, self.C = X, C
 
-    def pointmaps(self, fusion, K):
-        return self.X, self.C
+    def pointmaps(self, fusion, K, exported=False):
+        # The tracked pointmap (``state.X_canon``) differs from the map's (``X_map``).
+        return (self.X if exported else self.X + TRACKED_OFFSET), self.C
 
 
 def _system(overrides: list[str]) -> SimpleNamespace:
@@ -45,3 +49,9 @@ def test_confidence_one_is_never_exported() -> None:
     """Pixels without measured depth get C = 1 from the RGB-D prior: below any threshold >= 1."""
     xyz, _ = reconstruction_points(_system([]), c_thresh=1.0)
     assert len(xyz) == 5 and not np.any(np.all(xyz == [1.0, 2.0, 3.0], axis=1))
+
+
+def test_the_export_writes_the_map_points_not_the_tracked_pointmap() -> None:
+    """``reconstruction.ply`` holds ``Keyframe.X_map`` (fused without filled-in points)."""
+    xyz, _ = reconstruction_points(_system([]))
+    assert np.all(xyz < TRACKED_OFFSET)

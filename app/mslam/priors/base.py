@@ -12,8 +12,8 @@ Invariants (docs/upstream.md §2.1 output activations): ``C >= 1``, ``‖D‖ = 
 ``Q > 0``, all finite. ``C = NO_INFO_C`` (exactly 1, which MASt3R's ``1 + exp(·)`` never reaches)
 marks a pixel whose point carries no measurement: depth filled in from a neighbour (RGB-D
 pixels without depth, two-view pixels that failed triangulation) or a degenerate pair's plane.
-Fusion keeps such points out of the canonical pointmap and the export never writes them
-(``mslam.system.tracker.without_filler``, ``output.C_conf_threshold`` > 1).
+The map's fusion keeps such points out of the exported positions and the export never writes
+them (``mslam.system.tracker.without_filler``, ``output.C_conf_threshold`` > 1).
 
 Public names, in reading order:
     DESC_DIM, NO_INFO_C, PairPrediction, Prior, check_prediction

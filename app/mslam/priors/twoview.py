@@ -21,8 +21,8 @@ For RGB-only input without a network (image folders, videos, the RGB stream of T
    stays under upstream's ``Q_conf`` and tracking, edges and relocalisation reject the pair;
 4. otherwise every pixel of i (with ``F_ij``) and of j (with ``F_ji``) is triangulated in
    camera i (midpoint); pixels that fail (occlusion, cheirality, flow leaving the image) get
-   the depth of the nearest triangulated pixel and ``C = 1`` (``NO_INFO_C``: fusion keeps them
-   out of the canonical pointmap, the export never writes them);
+   the depth of the nearest triangulated pixel and ``C = 1`` (``NO_INFO_C``: the map's fusion
+   keeps them out of the exported positions, the export never writes them);
 5. the scale is arbitrary (``‖t_ji‖ = 1``) and normalised as MASt3R's outputs: both pointmaps
    are divided by the median distance of their triangulated points to camera i's centre;
 6. ``C = 1 + conf_max · w_θ · w_r · w_fb`` with ``w_θ = 1 - exp(-(θ/angle_sigma)²)``

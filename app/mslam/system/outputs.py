@@ -13,7 +13,8 @@ Files in the output folder, every one written atomically (temporary file, then r
 * ``reconstruction.ply`` — per keyframe, world points ``T_WC · X_canon`` (ray-constrained in
   calibrated mode), colours from the keyframe image, pixels with average confidence ``C/N``
   above ``output.C_conf_threshold`` (default 1.5, upstream's ``save_reconstruction``; the
-  RGB-D prior gives pixels without measured depth ``C = 1``, so they are never exported);
+  priors give pixels without a measurement ``C = 1``, so they are never exported, and their
+  filled-in depth never enters the exported positions, ``Keyframe.X_map``);
   binary little-endian, x y z float32, red green blue uint8.
 * ``summary.json`` — counts, timings, kernels, prior, ATE (Sim(3) Umeyama, evo's association)
   when ground truth exists, path length.
@@ -88,7 +89,7 @@ def reconstruction_points(
 
     if len(system.keyframes) == 0:
         return np.zeros((0, 3), np.float32), np.zeros((0, 3), np.uint8)
-    X, C = system.keyframes.pointmaps(fusion, system.K)
+    X, C = system.keyframes.pointmaps(fusion, system.K, exported=True)
     xyz, rgb = [], []
     for k, kf in enumerate(system.keyframes):
         img = keyframe_colours(system, k)

@@ -9,7 +9,8 @@ decode of the pair (frame, keyframe) in the keyframe's camera:
 3. the IRLS Gauss–Newton on ``T_CkCf`` (ray+distance, or calibrated pixels+depth), from the
    constant-position guess;
 4. fusion of the keyframe's canonical pointmap with ``X_kk = T_CkCf · X_kf`` (paper Eq. 8),
-   filled-in points (``C = NO_INFO_C``) kept out of the average (:func:`without_filler`);
+   and of the map's copy of it (``Keyframe.X_map``) with filled-in points (``C = NO_INFO_C``)
+   kept out of the average (:func:`without_filler`);
 5. the new-keyframe test (docs/upstream.md §5.5) as a recommendation to the caller.
 
 Too few valid matches or a failed solve mean the frame is lost (``None``).
@@ -70,6 +71,9 @@ def without_filler(
     state: fusion.PointmapState, X: FloatArray, C: FloatArray
 ) -> tuple[fusion.PointmapState, FloatArray]:
     """Keep points without a measurement (``C <= NO_INFO_C``) out of the fused positions.
+
+    Used for the map's copy of the canonical pointmap (``Keyframe.X_map``, what
+    ``reconstruction.ply`` exports); tracking and the backend keep upstream's average.
 
     A prior fills pixels it cannot measure (RGB-D pixels without depth, two-view pixels that
     failed triangulation) with a neighbour's depth and ``C = NO_INFO_C``. Averaged in, a filled
@@ -219,7 +223,11 @@ class Tracker:
     def _fuse(self, kf: Keyframe, p: PairPrediction, T_CkCf: FloatArray) -> None:
         """Fuse the frame's points, moved into the keyframe, into its pointmap (paper Eq. 8)."""
         with self.stats.timer("fusion"):
-            state, X_kk = without_filler(kf.state, sim3.act(T_CkCf, flat(p.X_ji)), flat(p.C_ji))
-            state = self.kernels.fusion.update_pointmap(state, X_kk, flat(p.C_ji), self.fusion_cfg)
+            X_kk, C_kk = sim3.act(T_CkCf, flat(p.X_ji)), flat(p.C_ji)
+            update = self.kernels.fusion.update_pointmap
+            state = update(kf.state, X_kk, C_kk, self.fusion_cfg)
+            # The map's positions: the same average without the filled points (same C, N).
+            map_state, X_map = without_filler(replace(kf.state, X_canon=kf.X_map), X_kk, C_kk)
+            X_map = np.asarray(update(map_state, X_map, C_kk, self.fusion_cfg).X_canon)
             with self.lock:
-                kf.state = state
+                kf.state, kf.X_map = state, X_map
