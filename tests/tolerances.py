@@ -151,3 +151,6 @@ MAP_PLY_ATOL = 1e-5
 RERUN_F32_POSITION = 1e-5
 #: a similarity fitted by RANSAC + Umeyama to exact correspondences (loop-closure check)
 SIM3_FIT = 1e-6
+#: a keyframe's log-range ratio against exact overlapping keyframes (nearest-pixel lookup of a
+#: rendered scene's depth; map_scale)
+SCALE_CONSENSUS = 0.02

@@ -94,3 +94,24 @@ def test_tracking_fuses_upstreams_average_and_the_map_fuses_without_filler():
     assert kf.X_map[0, 2] == 2.0  # the map ignores it
     assert kf.X_map[1, 2] == kf.state.X_canon[1, 2] == 3.5
     assert kf.state.N == 2 and np.all(kf.state.C == [6.0, 10.0])
+
+
+def test_a_keyframe_at_the_wrong_scale_is_found_and_rescaled(seq):
+    """Four keyframes with exact depth; one's pointmap 1.4x too large: its log-range ratio
+    against the others is log 1.4, theirs ~0, and only it is rescaled (by 1 / 1.4)."""
+    from tolerances import SCALE_CONSENSUS
+
+    from mslam.system.map_scale import keyframe_scale_disagreement, scale_corrections
+    from mslam_ref.pointmap import backproject
+
+    frames = [seq[i] for i in (0, 2, 4, 6)]
+    X = np.stack([backproject(f.depth, seq.K) for f in frames])
+    X[2] *= 1.4
+    C = np.full(X.shape[:3], 5.0)
+    T_WC = np.stack([f.T_WC for f in frames])
+    m = keyframe_scale_disagreement(X, C, T_WC, C_CONF_THRESHOLD)
+    assert abs(m[2] - np.log(1.4)) < SCALE_CONSENSUS
+    assert np.all(np.abs(np.delete(m, 2)) < SCALE_CONSENSUS)
+    f = scale_corrections(X, C, T_WC, C_CONF_THRESHOLD, tolerance=0.2)
+    assert f[2] == np.exp(-m[2]) and np.all(np.delete(f, 2) == 1.0)
+    assert np.all(scale_corrections(X, C, T_WC, C_CONF_THRESHOLD, tolerance=0.0) == 1.0)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from mslam.config import load_config
-from mslam.system.outputs import C_CONF_THRESHOLD, reconstruction_points
+from mslam.system.outputs import C_CONF_THRESHOLD, SCALE_TOLERANCE, reconstruction_points
 from mslam_ref import sim3
 
 #: Offset of the stub's tracked pointmap from its map points (an export of it would show).
@@ -21,6 +21,9 @@ class _Keyframes(list):
     def __init__(self, kfs, X, C):
         super().__init__(kfs)
         self.X, self.C = X, C
+
+    def poses(self):
+        return np.stack([kf.T_WC for kf in self])
 
     def pointmaps(self, fusion, K, exported=False):
         # The tracked pointmap (``state.X_canon``) differs from the map's (``X_map``).
@@ -43,6 +46,7 @@ def test_export_threshold_is_a_config_key(overrides, kept) -> None:
     xyz, rgb = reconstruction_points(_system(overrides))
     assert len(xyz) == len(rgb) == kept
     assert load_config("base").sections["output"]["C_conf_threshold"] == C_CONF_THRESHOLD
+    assert load_config("base").sections["output"]["scale_tolerance"] == SCALE_TOLERANCE
 
 
 def test_confidence_one_is_never_exported() -> None:
