@@ -9,7 +9,7 @@ same surfaces, so the disagreement is measurable without ground truth:
 * every keyframe ``a``'s exported points are moved into each other keyframe ``b``'s camera
   (``T_WC[b]⁻¹ · T_WC[a] · X_a``) and projected with ``b``'s pinhole, fitted to its own
   pointmap (``u = f_x x/z + c_x``, ``v = f_y y/z + c_y``, least squares);
-* where at least ``min_pixels`` of them land on exported pixels of ``b``, the median of
+* where at least ``min_pixels`` of them (thinned to ``max_points``) land on exported pixels of ``b``, the median of
   ``log(‖X_a in b‖ / ‖X_b‖)`` is the pair's log-range ratio;
 * ``m_a``, the median over the keyframes that overlap ``a``, is positive when ``a``'s points
   lie farther than the others put the same surfaces.
@@ -48,14 +48,21 @@ def pinhole_fit(X: FloatArray, valid: np.ndarray) -> FloatArray:
 
 
 def keyframe_scale_disagreement(
-    X: FloatArray, C: FloatArray, T_WC: FloatArray, c_thresh: float, min_pixels: int = 500
+    X: FloatArray,
+    C: FloatArray,
+    T_WC: FloatArray,
+    c_thresh: float,
+    min_pixels: int = 200,
+    max_points: int = 2000,
 ) -> FloatArray:
     """``m`` (K,): each keyframe's median log-range ratio against the keyframes it overlaps.
 
     Args:
         X: (K, H, W, 3) keyframe pointmaps; C: (K, H, W) average confidences ``C/N``;
         T_WC: (K, 8) Sim(3) poses; c_thresh: only pixels with ``C > c_thresh`` take part
-            (the export's threshold); min_pixels: overlap needed for a pair to count.
+            (the export's threshold); min_pixels: overlap needed for a pair to count;
+            max_points: each keyframe's points are thinned to about this many (a regular
+            stride), which bounds the cost at ``K² · max_points`` projections.
 
     Returns:
         (K,) float64, 0 for a keyframe that overlaps no other.
@@ -65,7 +72,8 @@ def keyframe_scale_disagreement(
     cams = [pinhole_fit(X[b], keep[b]) if keep[b].sum() >= 3 else None for b in range(n)]
     m = np.zeros(n)
     for a in range(n):
-        P_w = sim3.act(T_WC[a], X[a][keep[a]])
+        P_a = X[a][keep[a]]
+        P_w = sim3.act(T_WC[a], P_a[:: max(1, len(P_a) // max_points)])
         ratios = []
         for b in range(n):
             if b == a or cams[b] is None or len(P_w) < min_pixels:
