@@ -157,3 +157,6 @@ RESIZE_CENTROID_PX = 0.05
 #: ratio of the frame's to the keyframe's metric scale in one two-view pair, over the pixels
 #: the prior triangulated (relative; synthetic loop 160x120 pairs, median 0.994-0.998)
 PAIR_SCALE_REL = 0.02
+#: a keyframe's log-range ratio against exact overlapping keyframes (nearest-pixel lookup of a
+#: rendered scene's depth; map_scale)
+SCALE_CONSENSUS = 0.02

@@ -78,6 +78,7 @@ RANGES: dict[str, tuple[bool, float, float, bool]] = {
     "mast3r_prior.size": (True, 224, 512, False),
     "mast3r_prior.cache_bytes": (True, 0, 1_000_000_000_000, False),
     "output.C_conf_threshold": (False, 0, _INF, False),
+    "output.scale_tolerance": (False, 0, _INF, False),
 }
 
 

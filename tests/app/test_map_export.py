@@ -8,8 +8,11 @@ import numpy as np
 import pytest
 
 from mslam.config import load_config
-from mslam.system.outputs import C_CONF_THRESHOLD, reconstruction_points
+from mslam.system.outputs import C_CONF_THRESHOLD, SCALE_TOLERANCE, reconstruction_points
 from mslam_ref import sim3
+
+#: Offset of the stub's tracked pointmap from its map points (an export of it would show).
+TRACKED_OFFSET = 100.0
 
 
 class _Keyframes(list):
@@ -19,8 +22,12 @@ class _Keyframes(list):
         super().__init__(kfs)
         self.X, self.C = X, C
 
-    def pointmaps(self, fusion, K):
-        return self.X, self.C
+    def poses(self):
+        return np.stack([kf.T_WC for kf in self])
+
+    def pointmaps(self, fusion, K, exported=False):
+        # The tracked pointmap (``state.X_canon``) differs from the map's (``X_map``).
+        return (self.X if exported else self.X + TRACKED_OFFSET), self.C
 
 
 def _system(overrides: list[str]) -> SimpleNamespace:
@@ -39,9 +46,16 @@ def test_export_threshold_is_a_config_key(overrides, kept) -> None:
     xyz, rgb = reconstruction_points(_system(overrides))
     assert len(xyz) == len(rgb) == kept
     assert load_config("base").sections["output"]["C_conf_threshold"] == C_CONF_THRESHOLD
+    assert load_config("base").sections["output"]["scale_tolerance"] == SCALE_TOLERANCE
 
 
 def test_confidence_one_is_never_exported() -> None:
     """Pixels without measured depth get C = 1 from the RGB-D prior: below any threshold >= 1."""
     xyz, _ = reconstruction_points(_system([]), c_thresh=1.0)
     assert len(xyz) == 5 and not np.any(np.all(xyz == [1.0, 2.0, 3.0], axis=1))
+
+
+def test_the_export_writes_the_map_points_not_the_tracked_pointmap() -> None:
+    """``reconstruction.ply`` holds ``Keyframe.X_map`` (fused without filled-in points)."""
+    xyz, _ = reconstruction_points(_system([]))
+    assert np.all(xyz < TRACKED_OFFSET)

@@ -9,10 +9,14 @@ pointmaps — the network, a synthetic generator, an RGB-D camera — implements
 * ``pair(frame_i, frame_j) -> PairPrediction`` — upstream ``mast3r_asymmetric_inference``.
 
 Invariants (docs/upstream.md §2.1 output activations): ``C >= 1``, ``‖D‖ = 1`` per pixel with F = 24,
-``Q > 0``, all finite.
+``Q > 0``, all finite. ``C = NO_INFO_C`` (exactly 1, which MASt3R's ``1 + exp(·)`` never reaches)
+marks a pixel whose point carries no measurement: depth filled in from a neighbour (RGB-D
+pixels without depth, two-view pixels that failed triangulation) or a degenerate pair's plane.
+The map's fusion keeps such points out of the exported positions and the export never writes
+them (``mslam.system.tracker.without_filler``, ``output.C_conf_threshold`` > 1).
 
 Public names, in reading order:
-    DESC_DIM, PairPrediction, Prior, check_prediction
+    DESC_DIM, NO_INFO_C, PairPrediction, Prior, check_prediction
 """
 
 from __future__ import annotations
@@ -25,10 +29,13 @@ import numpy as np
 from mslam.datasets.frame import Frame
 from mslam_ref.conventions import FloatArray
 
-__all__ = ["DESC_DIM", "PairPrediction", "Prior", "check_prediction"]
+__all__ = ["DESC_DIM", "NO_INFO_C", "PairPrediction", "Prior", "check_prediction"]
 
 #: MASt3R's descriptor dimension F (``output_mode='pts3d+desc24'``).
 DESC_DIM = 24
+
+#: Confidence of a point without a measurement (filled depth, a degenerate pair's plane).
+NO_INFO_C = 1.0
 
 
 @dataclass(frozen=True, eq=False)

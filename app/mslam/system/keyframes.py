@@ -37,6 +37,9 @@ class Keyframe:
         features: (nfeat, F) retrieval features, or None.
         T_WC_init: (8,) the pose the keyframe was created with (tracking or relocalisation,
             before any backend solve), kept for plots and diagnostics.
+        X_map: (N, 3) the points the map exports: ``state.X_canon`` fused with the same weights
+            but without filled-in points (``mslam.system.tracker.without_filler``); tracking
+            and the backend use ``state`` as upstream does.
     """
 
     frame: Frame
@@ -45,10 +48,13 @@ class Keyframe:
     shape: tuple[int, int]
     features: FloatArray | None = None
     T_WC_init: FloatArray | None = None
+    X_map: FloatArray | None = None
 
     def __post_init__(self) -> None:
         if self.T_WC_init is None:
             self.T_WC_init = np.asarray(self.T_WC, dtype=np.float64).copy()
+        if self.X_map is None:
+            self.X_map = np.asarray(self.state.X_canon, dtype=np.float64).copy()
 
 
 class KeyframeStore:
@@ -97,7 +103,7 @@ class KeyframeStore:
             self._kfs[int(k)].T_WC = T.copy()
 
     def pointmaps(
-        self, fusion: ModuleType, K: FloatArray | None = None
+        self, fusion: ModuleType, K: FloatArray | None = None, exported: bool = False
     ) -> tuple[FloatArray, FloatArray]:
         """Stacked canonical pointmaps and average confidences of all keyframes.
 
@@ -105,12 +111,15 @@ class KeyframeStore:
             fusion: the ``mslam_ref.fusion`` module (for ``average_confidence``).
             K: (3, 3) intrinsics in calibrated mode: points are constrained to the known rays
                 (``mslam_ref.calib.constrain_points_to_ray``), as upstream's ``solve_GN_calib``.
+            exported: the map's points (``Keyframe.X_map``) instead of ``state.X_canon``.
 
         Returns:
             X (K, H, W, 3) and C (K, H, W) = C / N.
         """
         H, W = self._kfs[0].shape
-        X = np.stack([kf.state.X_canon.reshape(H, W, 3) for kf in self._kfs])
+        X = np.stack(
+            [(kf.X_map if exported else kf.state.X_canon).reshape(H, W, 3) for kf in self._kfs]
+        )
         C = np.stack(
             [np.asarray(fusion.average_confidence(kf.state)).reshape(H, W) for kf in self._kfs]
         )

@@ -13,8 +13,11 @@ Files in the output folder, every one written atomically (temporary file, then r
 * ``reconstruction.ply`` — per keyframe, world points ``T_WC · X_canon`` (ray-constrained in
   calibrated mode), colours from the keyframe image, pixels with average confidence ``C/N``
   above ``output.C_conf_threshold`` (default 1.5, upstream's ``save_reconstruction``; the
-  RGB-D prior gives pixels without measured depth ``C = 1``, so they are never exported);
-  binary little-endian, x y z float32, red green blue uint8.
+  priors give pixels without a measurement ``C = 1``, so they are never exported, and their
+  filled-in depth never enters the exported positions, ``Keyframe.X_map``);
+  a keyframe whose depth disagrees with the keyframes it overlaps by more than
+  ``output.scale_tolerance`` (log ratio, default 0.2) is rescaled about its camera
+  (``mslam.system.map_scale``); binary little-endian, x y z float32, red green blue uint8.
 * ``summary.json`` — counts, timings, kernels, prior, ATE (Sim(3) Umeyama, evo's association)
   when ground truth exists, path length.
 * ``trajectory.png`` — estimate (aligned) and ground truth from the top, and the error over time.
@@ -42,6 +45,7 @@ from mslam_ref import sim3
 
 __all__ = [
     "C_CONF_THRESHOLD",
+    "SCALE_TOLERANCE",
     "keyframe_colours",
     "evaluate_run",
     "plot_trajectory",
@@ -49,6 +53,8 @@ __all__ = [
     "summary_dict",
     "write_outputs",
 ]
+
+SCALE_TOLERANCE = 0.2  #: default of ``output.scale_tolerance`` (log ratio, ``system.map_scale``)
 
 #: Default of ``output.C_conf_threshold``, the average confidence an exported point must exceed
 #: (upstream viz default, docs/upstream.md §13).
@@ -80,20 +86,23 @@ def reconstruction_points(
     Returns:
         xyz (P, 3) float32, rgb (P, 3) uint8.
     """
+    from mslam.system.map_scale import scale_corrections
     from mslam_ref import fusion
 
+    section = dict(system.cfg.sections.get("output", {}))
     if c_thresh is None:
-        section = dict(system.cfg.sections.get("output", {}))
         c_thresh = float(section.get("C_conf_threshold", C_CONF_THRESHOLD))
+    tolerance = float(section.get("scale_tolerance", SCALE_TOLERANCE))
 
     if len(system.keyframes) == 0:
         return np.zeros((0, 3), np.float32), np.zeros((0, 3), np.uint8)
-    X, C = system.keyframes.pointmaps(fusion, system.K)
+    X, C = system.keyframes.pointmaps(fusion, system.K, exported=True)
+    factor = scale_corrections(X, C, system.keyframes.poses(), c_thresh, tolerance)
     xyz, rgb = [], []
     for k, kf in enumerate(system.keyframes):
         img = keyframe_colours(system, k)
         keep = (C[k] > c_thresh) & np.all(np.isfinite(X[k]), axis=-1)
-        xyz.append(sim3.act(kf.T_WC, X[k][keep]))
+        xyz.append(sim3.act(kf.T_WC, factor[k] * X[k][keep]))
         rgb.append(img[keep])
     return np.concatenate(xyz).astype(np.float32), np.concatenate(rgb).astype(np.uint8)
 

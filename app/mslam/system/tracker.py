@@ -10,13 +10,15 @@ decode of the pair (frame, keyframe) in the keyframe's camera:
    pixel of sufficient quality is used instead (the frame is not lost for it);
 3. the IRLS Gauss–Newton on ``T_CkCf`` (ray+distance, or calibrated pixels+depth), from the
    constant-position guess;
-4. fusion of the keyframe's canonical pointmap with ``X_kk = T_CkCf · X_kf`` (paper Eq. 8);
+4. fusion of the keyframe's canonical pointmap with ``X_kk = T_CkCf · X_kf`` (paper Eq. 8),
+   and of the map's copy of it (``Keyframe.X_map``) with filled-in points (``C = NO_INFO_C``)
+   kept out of the average (:func:`without_filler`);
 5. the new-keyframe test (docs/upstream.md §5.5) as a recommendation to the caller.
 
 Too few valid matches or a failed solve mean the frame is lost (``None``).
 
 Public names, in reading order:
-    TrackResult, Tracker
+    without_filler, TrackResult, Tracker
 """
 
 from __future__ import annotations
@@ -24,20 +26,20 @@ from __future__ import annotations
 import dataclasses
 import threading
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from mslam.config import SlamConfig
 from mslam.kernels import KernelSet
-from mslam.priors.base import PairPrediction
+from mslam.priors.base import NO_INFO_C, PairPrediction
 from mslam.system.keyframes import Keyframe
 from mslam.system.state import RunStats
 from mslam_ref import fusion, sim3, tracking
 from mslam_ref.conventions import FloatArray
 from mslam_ref.pointmap import strided_pixels
 
-__all__ = ["TrackResult", "Tracker"]
+__all__ = ["TrackResult", "Tracker", "without_filler"]
 
 
 def flat(a: np.ndarray) -> np.ndarray:
@@ -66,6 +68,43 @@ def constrain(X: np.ndarray, shape: tuple[int, int], K: FloatArray | None) -> np
     from mslam_ref.calib import constrain_points_to_ray
 
     return constrain_points_to_ray(X.reshape(*shape, 3), K).reshape(-1, 3)
+
+
+def without_filler(
+    state: fusion.PointmapState, X: FloatArray, C: FloatArray
+) -> tuple[fusion.PointmapState, FloatArray]:
+    """Keep points without a measurement (``C <= NO_INFO_C``) out of the fused positions.
+
+    Used for the map's copy of the canonical pointmap (``Keyframe.X_map``, what
+    ``reconstruction.ply`` exports); tracking and the backend keep upstream's average.
+
+    A prior fills pixels it cannot measure (RGB-D pixels without depth, two-view pixels that
+    failed triangulation) with a neighbour's depth and ``C = NO_INFO_C``. Averaged in, a filled
+    point would pull a measured one towards the neighbour's depth with weight ``1 / (C + 1)``;
+    so before the update (``fusion.update_pointmap``, any filtering mode):
+
+    * a new point with ``C <= NO_INFO_C`` is replaced by the canonical point (the average does
+      not move; its confidence still counts in ``C`` and ``N``, so ``C / N`` drops);
+    * a canonical pixel that has only seen filled points (``C / N <= NO_INFO_C``) takes the new
+      measured point, which the weighted average then returns exactly.
+
+    A pixel that was never measured keeps ``C / N = NO_INFO_C`` and is never exported.
+
+    Args:
+        state: the keyframe's canonical pointmap, X_canon (P, 3), C (P,).
+        X: (P, 3) the new points in the keyframe's camera; C: (P,) their confidences.
+
+    Returns:
+        the state to update (a copy where it changed) and the points to fuse (P, 3).
+    """
+    new_filled = np.asarray(C).reshape(-1) <= NO_INFO_C
+    old_filled = np.asarray(fusion.average_confidence(state)).reshape(-1) <= NO_INFO_C
+    take = old_filled & ~new_filled
+    if take.any():
+        state = replace(state, X_canon=np.where(take[:, None], X, state.X_canon))
+    if new_filled.any():
+        X = np.where(new_filled[:, None], state.X_canon, X)
+    return state, X
 
 
 @dataclass(frozen=True)
@@ -203,7 +242,11 @@ class Tracker:
     def _fuse(self, kf: Keyframe, p: PairPrediction, T_CkCf: FloatArray) -> None:
         """Fuse the frame's points, moved into the keyframe, into its pointmap (paper Eq. 8)."""
         with self.stats.timer("fusion"):
-            X_kk = sim3.act(T_CkCf, flat(p.X_ji))
-            state = self._fuse_fn(kf.state, X_kk, flat(p.C_ji), self.fusion_cfg)
+            X_kk, C_kk = sim3.act(T_CkCf, flat(p.X_ji)), flat(p.C_ji)
+            state = self._fuse_fn(kf.state, X_kk, C_kk, self.fusion_cfg)
+            # The map's positions: the same average without the filled points (same C, N).
+            map_state, X_map = without_filler(replace(kf.state, X_canon=kf.X_map), X_kk, C_kk)
+            update = self.kernels.fusion.update_pointmap
+            X_map = np.asarray(update(map_state, X_map, C_kk, self.fusion_cfg).X_canon)
             with self.lock:
-                kf.state = state
+                kf.state, kf.X_map = state, X_map
