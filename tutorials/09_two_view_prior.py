@@ -231,13 +231,16 @@ fig.tight_layout()
 plt.show()
 
 # %% [markdown]
-# On the full 150-frame clip at 160x120 (measured 2026-11-26, docs/evaluation.md, section 4.1) the
-# RGB-only map scores a chamfer of 20 cm with 5.9 % of its points far, the RGB-D map 9.0 cm —
-# and 1.9 cm once registered: the RGB-D map itself is tight, its trajectory alignment is not.
-# The exported points' confidence threshold trades accuracy for completion: for the RGB-only
-# run, `output.C_conf_threshold=2` drops the far share from 5.9 % to 1.7 % and completion
-# grows from 19 to 23 cm. This chapter's run (every second frame, measured 2026-11-26): chamfer
-# 31.7 cm with 14.4 % far, 26.7 cm after ICP, and a position fit 39° from the orientations'.
+# On the full 150-frame clip at 160x120 (measured 2026-11-26, benchmarks/RESULTS.md "Monocular
+# RGB") the RGB-only map scores a chamfer of 16.6 cm with 0.7 % of its points far (10.4 cm once
+# registered by ICP), the RGB-D map 8.8 cm — and 1.5 cm once registered: the RGB-D map itself
+# is tight, its trajectory alignment is not. How much of that is the alignment alone?
+# docs/evaluation.md moves the *true* cloud by the Sim(3) fitted to a noisy copy of the true
+# path: with a drift-shaped trajectory error of 1.6 cm (this clip's RGB-D ATE) a perfect map
+# scores 7.1 cm, because the path is 1.07 m long and only 1 cm thick across its plane, so the
+# positions barely fix the rotation about its long axis. Before reading a map metric, look at
+# the path it was aligned with. This chapter's run (every second frame) prints its own figures
+# above.
 
 # %% [markdown]
 # ## Reference against fast on a two-view pair
