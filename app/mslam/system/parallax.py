@@ -29,7 +29,6 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
@@ -94,8 +93,6 @@ class ParallaxSteps:
     init_candidate: Frame | None
     init_pending: list[Frame]
     last_tracked: TrackedFrame | None
-    keyframes: Any  # SlamSystem.keyframes, the backend's KeyframeStore
-    retrieval: Any  # SlamSystem.retrieval, the backend's RetrievalIndex
     record: Callable[..., None]
     track: Callable[..., FrameStatus]
     make_keyframe: Callable[..., int]
@@ -142,8 +139,8 @@ class ParallaxSteps:
                 self.init_pending.append(frame)
             return FrameStatus.WAITING
         k = self.backend.add_keyframe(cand, self.anchor, p.X_ii, p.C_ii, p.D_ii, p.Q_ii)
-        self.retrieval.update(self.keyframes[k].features)
-        self.T_WC_last = self.keyframes[k].T_WC.copy()
+        self.backend.retrieval.update(self.backend.keyframes[k].features)
+        self.T_WC_last = self.backend.keyframes[k].T_WC.copy()
         self.record(cand, k, None, FrameStatus.KEYFRAME)
         self.mode = Mode.TRACKING
         result = self.track(frame, force_keyframe=True)
@@ -162,16 +159,16 @@ class ParallaxSteps:
         """The pair with the last keyframe, or with the one before it when the prior flags the
         first pair degenerate (``last_status``); with the rotation to pose the frame by when
         the pair with the last keyframe lacks parallax and no fallback worked."""
-        kf_idx = len(self.keyframes) - 1
+        kf_idx = len(self.backend.keyframes) - 1
         with self.stats.timer("prior"):
-            p = self.prior.pair(frame, self.keyframes[kf_idx].frame)
+            p = self.prior.pair(frame, self.backend.keyframes[kf_idx].frame)
         status = self.pair_status()
         if status in ("ok", "same"):
             return KeyframePair(kf_idx, p, False, status, None)
         R_ji = getattr(self.prior, "last_R_ji", None) if status == "parallax" else None
         if kf_idx > self.backend.map_start:  # the keyframe before it, in the same map
             with self.stats.timer("prior"):
-                p_prev = self.prior.pair(frame, self.keyframes[kf_idx - 1].frame)
+                p_prev = self.prior.pair(frame, self.backend.keyframes[kf_idx - 1].frame)
             if self.pair_status() == "ok":
                 return KeyframePair(kf_idx - 1, p_prev, True, status, None)
         return KeyframePair(kf_idx, p, False, status, R_ji)
@@ -186,7 +183,7 @@ class ParallaxSteps:
         Nothing is fused and the frame never asks for a keyframe; it may become one late
         (:meth:`promote_last_tracked`).
         """
-        kf = self.keyframes[pair.kf_idx]
+        kf = self.backend.keyframes[pair.kf_idx]
         q = None if pair.R_ji is None else so3.from_matrix(pair.R_ji)
         if q is None:
             res = self.tracker.track(kf, pair.p, self.T_WC_last, fuse=False)
@@ -209,7 +206,7 @@ class ParallaxSteps:
         keyframe that should have been made. Returns whether one was added.
         """
         last, self.last_tracked = self.last_tracked, None
-        if last is None or last.frame.index == self.keyframes.last().frame.index:
+        if last is None or last.frame.index == self.backend.keyframes.last().frame.index:
             return False
         self.poses = [q for q in self.poses if q.index != last.frame.index]
         self.make_keyframe(last.frame, last.T_WC, last.p)

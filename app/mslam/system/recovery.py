@@ -27,11 +27,11 @@ Public names, in reading order:
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, fields
 from typing import Any
 
-from mslam.system.state import FrameStatus
+from mslam.system.state import FramePose, FrameStatus
 
 __all__ = ["Recovery", "RecoveryConfig"]
 
@@ -111,7 +111,7 @@ class Recovery:
         """The map keyframe ``kf`` belongs to."""
         return max(m["map"] for m in self.maps if m["first_keyframe"] <= kf)
 
-    def report(self, poses: list[Any], n_keyframes: int) -> dict[str, Any]:
+    def report(self, poses: Sequence[FramePose], n_keyframes: int) -> dict[str, Any]:
         """The summary's ``maps`` (each with ``keyframes`` and ``frames_posed`` added) and a
         warning per new map.
 

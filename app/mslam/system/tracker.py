@@ -23,7 +23,6 @@ Public names, in reading order:
 
 from __future__ import annotations
 
-import dataclasses
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass, replace
@@ -203,7 +202,7 @@ class Tracker:
             if float(np.mean(valid_opt[on])) < cfg.min_match_frac and cfg.C_conf > 0:
                 # Too few confident pixels (e.g. a prior that triangulated little of a narrow
                 # view): the frame is tracked on every matched pixel rather than lost.
-                cfg = dataclasses.replace(cfg, C_conf=0.0)
+                cfg = replace(cfg, C_conf=0.0)
                 valid_opt, valid_kf = tracking.tracking_masks(valid_match_k[s], C_f, C_k, Q_k, cfg)
             if float(np.mean(valid_opt[on])) < cfg.min_match_frac:
                 return None
