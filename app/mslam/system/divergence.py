@@ -18,8 +18,12 @@ kept: a solve whose final cost exceeds its first, or that moves a keyframe by mo
 current map's keyframes after every backend step, for a map that spreads without bound while
 each step looks plausible (a slow runaway): the keyframes' Sim(3) scale moving steadily one way
 over the last ``spread_window`` keyframes (net log change at least ``min_drift_trend`` of the
-summed absolute log changes) by a factor beyond ``max_scale_drift``, or the recent keyframe spacing grown beyond ``max_spacing_growth`` times the map's first
-spacings. It is reported once per map (an event and a warning: ``plausible`` is false).
+summed absolute log changes) by a factor beyond ``max_scale_drift``, once the part that the
+keyframes' motion along their optical axes explains is taken out (a prior that normalises its
+pointmaps, as MASt3R and the two-view prior do, shrinks the scale of a camera walking towards a
+wall: the scene's distance falls by the distance walked), or the recent keyframe spacing grown
+beyond ``max_spacing_growth`` times the map's first spacings. It is reported once per map (an
+event and a warning: ``plausible`` is false).
 :func:`trajectory_warnings` checks the final per-frame trajectory the same way (non-finite,
 jumps, a spread far beyond the path's steps), for the summary's ``warnings``. Each event has a
 ``kind``: ``"pose"`` (a refused frame pose), ``"solve"`` (an undone solve), ``"spread"``.
@@ -37,6 +41,7 @@ from typing import Any
 
 import numpy as np
 
+from mslam_ref import so3
 from mslam_ref.conventions import FloatArray
 
 __all__ = [
@@ -47,6 +52,10 @@ __all__ = [
     "map_spread",
     "trajectory_warnings",
 ]
+
+#: A camera that moves past the scene it looked at keeps at least this share of its distance
+#: in :func:`map_spread`'s motion model (a bound on the explained scale change per keyframe).
+MIN_DEPTH_FRAC = 0.1
 
 
 @dataclass(frozen=True)
@@ -125,11 +134,12 @@ class DivergenceMonitor:
         """Frame index of every refused frame pose so far, in order."""
         return [int(e["frame"]) for e in self.events if e["kind"] == "pose"]
 
-    def check_map(self, frame: int, T_kf: FloatArray) -> bool:
-        """:func:`map_spread` on the current map's keyframe poses ``T_kf`` (K, 8) after the
-        backend step of the keyframe made at ``frame``; records the first spread of each map.
-        Returns whether the map looks bounded."""
-        why = map_spread(T_kf, self.cfg)
+    def check_map(self, frame: int, T_kf: FloatArray, depth: FloatArray | None = None) -> bool:
+        """:func:`map_spread` on the current map's keyframe poses ``T_kf`` (K, 8) and their
+        canonical points' median distances ``depth`` (K,) after the backend step of the
+        keyframe made at ``frame``; records the first spread of each map. Returns whether the
+        map looks bounded."""
+        why = map_spread(T_kf, self.cfg, depth)
         if why is None:
             return True
         if not self._spread_reported:
@@ -228,22 +238,56 @@ def guard_backend(
     return None
 
 
-def map_spread(T_kf: FloatArray, cfg: DivergenceConfig = DivergenceConfig()) -> str | None:
+def _explained_log_change(T: FloatArray, depth: FloatArray) -> float:
+    """Net log change of the keyframes' Sim(3) scale that their motion explains.
+
+    The keyframes' scene distance in world units is ``d_k = s_k · depth_k``; moving by
+    ``f_k = (c_{k+1} - c_k) · z_k`` along the optical axis ``z_k`` takes the same scene to
+    distance ``d_k - f_k`` (exactly for a wall facing the camera). A prior that normalises
+    its pointmaps (``depth_k`` constant) then needs ``s_{k+1} / s_k = (d_k - f_k) / d_k``;
+    the sum of those log ratios is returned.
+
+    Args:
+        T: (K, 8) keyframe poses in creation order.
+        depth: (K,) median distance of each keyframe's canonical points to its camera.
+    """
+    z = so3.act(T[:-1, 3:7], np.array([0.0, 0.0, 1.0]))  # (K-1, 3) optical axes in the world
+    f = np.sum(np.diff(T[:, :3], axis=0) * z, axis=1)
+    d = T[:-1, 7] * depth[:-1]
+    return float(np.sum(np.log(np.maximum(d - f, MIN_DEPTH_FRAC * d) / d)))
+
+
+def map_spread(
+    T_kf: FloatArray, cfg: DivergenceConfig = DivergenceConfig(), depth: FloatArray | None = None
+) -> str | None:
     """Why keyframe poses ``T_kf`` (K, 8) of one map, in creation order, look like a map that
     spreads without bound, or None (module docstring: a steady Sim(3) scale drift over the
-    last ``spread_window`` keyframes, or keyframe spacing grown ``max_spacing_growth``-fold)."""
+    last ``spread_window`` keyframes that the keyframes' motion towards or away from the scene
+    does not explain, or keyframe spacing grown ``max_spacing_growth``-fold).
+
+    ``depth`` (K,): the median distance of each keyframe's canonical points to its camera.
+    With it, the part of the scale change that the camera's motion along its optical axis
+    explains (walking towards a wall shrinks a normalised prior's scale) is not drift; without
+    it every steady scale change counts."""
     T = np.asarray(T_kf, dtype=np.float64).reshape(-1, 8)
     w = cfg.spread_window
     if len(T) <= w or not np.all(np.isfinite(T)) or not np.all(T[:, 7] > 0):
         return None
     d = np.diff(np.log(T[-w - 1 :, 7]))
     trend = abs(float(d.sum())) / max(float(np.abs(d).sum()), 1e-300)  # 1: every step one way
-    drift = float(np.exp(abs(d.sum())))
+    net = float(d.sum())
+    if depth is not None:
+        m = np.asarray(depth, dtype=np.float64).reshape(-1)[-w - 1 :]
+        if len(m) == w + 1 and np.all(np.isfinite(m)) and np.all(m > 0):
+            # Motion only explains a change the same way as the observed one, and at most all.
+            net -= float(np.clip(_explained_log_change(T[-w - 1 :], m), min(net, 0), max(net, 0)))
+    drift = float(np.exp(abs(net)))
     if trend >= cfg.min_drift_trend and drift > cfg.max_scale_drift:
-        way = "grew" if d.sum() > 0 else "shrank"
+        way = "grew" if net > 0 else "shrank"
         return (
             f"the keyframes' Sim(3) scale {way} by a factor {drift:.3g} over the last {w} "
-            f"keyframes, steadily (net change {100 * trend:.0f} % of the total change)"
+            f"keyframes, steadily (net change {100 * trend:.0f} % of the total change), "
+            "beyond what their motion towards or away from the scene explains"
         )
     steps = np.linalg.norm(np.diff(T[:, :3], axis=0), axis=1)
     first, recent = float(np.median(steps[:w])), float(np.median(steps[-w:]))

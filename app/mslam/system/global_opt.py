@@ -157,8 +157,18 @@ class Backend:
             self.add_keyframe_edges(k, known)
         with self.stats.timer("backend"):
             self.solve()
-        self.divergence.check_map(int(self.keyframes[k].frame.index),
-                                  self.keyframes.poses()[self.map_start :])  # fmt: skip
+        T_kf = self.keyframes.poses()[self.map_start :]
+        self.divergence.check_map(int(self.keyframes[k].frame.index), T_kf,
+                                  self.keyframe_depths(len(T_kf)))  # fmt: skip
+
+    def keyframe_depths(self, n: int) -> FloatArray:
+        """(n,) median distance of the canonical points of the last ``n`` keyframes to their
+        camera, for the spread watch; only its window's keyframes are measured (NaN before)."""
+        depth = np.full(n, np.nan)
+        for i in range(max(0, n - self.divergence.cfg.spread_window - 1), n):
+            X = self.keyframes[len(self.keyframes) - n + i].state.X_canon
+            depth[i] = float(np.median(np.linalg.norm(np.reshape(X, (-1, 3)), axis=1)))
+        return depth
 
     def add_keyframe_edges(self, k: int, known: KnownPairs | None = None) -> int:
         """Graph construction for new keyframe ``k``; returns the number of edges added.

@@ -1,0 +1,174 @@
+"""Harder variants of a 7-Scenes clip: the ways real phone-like videos differ from it.
+
+Writes TUM-layout folders (``rgb.txt``, ``groundtruth.txt``; no depth, so only the ``twoview``
+prior accepts them) whose images are the clip's colour images changed in one way each:
+
+* ``exposure`` — brightness gain swinging between 1/2 and 2 (one stop each way) over 60 frames;
+* ``blur`` — a horizontal motion-blur kernel of 15 pixels (at 640x480) on every frame;
+* ``jpeg`` — every frame re-encoded as JPEG at quality 8 (blocking, ringing);
+* ``portrait`` — every frame rotated 90 degrees clockwise (480x640, a phone held upright);
+* ``mirror`` — every frame mirrored left-right (ground truth reflected accordingly);
+* ``static`` — the first frame repeated 20 times before the clip (a camera at rest);
+* ``pause`` — frame 75 repeated 20 times (a camera that stops in the middle);
+* ``dup`` — every 4th frame shown twice (a 24 Hz video converted to 30 Hz);
+* ``drops`` — frames 50-53 and 100-104 left out (a video dropping frames);
+* ``res320`` — every frame at 320x240;
+* ``wide`` — the central 640x360 pixels (16:9);
+* ``video`` — the clip as an MPEG-4 video file ``video/clip.mp4`` (the video loader; no
+  ground truth).
+
+Ground truth follows each change: a mirrored image is the image of the mirrored world
+(camera-to-world ``F M F``, ``F = diag(-1, 1, 1, 1)``), a rotated image that of the camera
+turned about its optical axis (``M Rz^T``). Synthetic sources need no files: run
+``synthetic:forward:120:160x120`` (a camera walking steadily towards a wall) and others directly.
+
+Usage: ``python benchmarks/hard_variants.py OUT_DIR [--clip FOLDER] [--only NAME ...]``, then
+``mslam run OUT_DIR/NAME --prior twoview --out RUN`` (``OUT_DIR/video/clip.mp4`` for ``video``)
+and ``python benchmarks/video_variants.py --table RUN ...`` for one line per run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from mslam.datasets.readers import matrix_to_T_WC, natsorted, read_pose_matrix
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _data import seven_scenes
+
+#: Frame period of the written timestamps (s).
+DT = 1.0 / 30.0
+#: Frames of the ``static`` variant's rest at the start.
+STATIC_FRAMES = 20
+#: Frame where ``pause`` stops the camera for ``STATIC_FRAMES`` frames.
+PAUSE_AT = 75
+#: Frames left out by ``drops`` (two bursts of 4 and 5).
+DROPPED = set(range(50, 54)) | set(range(100, 105))
+#: Motion-blur length of ``blur`` (pixels at 640x480).
+BLUR_PX = 15
+#: JPEG quality of ``jpeg``.
+JPEG_QUALITY = 8
+#: Period of the exposure swing of ``exposure`` (frames).
+EXPOSURE_PERIOD = 60
+
+NAMES = (
+    "exposure",
+    "blur",
+    "jpeg",
+    "portrait",
+    "mirror",
+    "static",
+    "pause",
+    "dup",
+    "drops",
+    "res320",
+    "wide",
+    "video",
+)
+
+F = np.diag([-1.0, 1.0, 1.0, 1.0])
+#: Camera-frame rotation of a 90-degree clockwise image turn: ``x' = -y``, ``y' = x``.
+RZ = np.array([[0.0, -1, 0, 0], [1, 0, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]])
+
+
+def _order(name: str, n: int) -> list[int]:
+    if name == "static":
+        return [0] * STATIC_FRAMES + list(range(n))
+    if name == "pause":
+        return list(range(PAUSE_AT)) + [PAUSE_AT] * STATIC_FRAMES + list(range(PAUSE_AT, n))
+    if name == "dup":
+        return [i for i in range(n) for _ in range(2 if i % 4 == 3 else 1)]
+    if name == "drops":
+        return [i for i in range(n) if i not in DROPPED]
+    return list(range(n))
+
+
+def _image_op(name: str, k: int) -> Callable[[np.ndarray], np.ndarray]:
+    """The change applied to the ``k``-th written image (BGR uint8 in and out)."""
+    if name == "exposure":
+        gain = 2.0 ** np.sin(2 * np.pi * k / EXPOSURE_PERIOD)
+        return lambda im: np.clip(im.astype(np.float32) * gain, 0, 255).astype(np.uint8)
+    if name == "blur":
+        kern = np.full((1, BLUR_PX), 1.0 / BLUR_PX, np.float32)
+        return lambda im: cv2.filter2D(im, -1, kern, borderType=cv2.BORDER_REFLECT)
+    if name == "jpeg":
+
+        def jpeg(im: np.ndarray) -> np.ndarray:
+            _ok, buf = cv2.imencode(".jpg", im, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
+            return cv2.imdecode(buf, cv2.IMREAD_COLOR)
+
+        return jpeg
+    if name == "portrait":
+        return lambda im: cv2.rotate(im, cv2.ROTATE_90_CLOCKWISE)
+    if name == "mirror":
+        return lambda im: im[:, ::-1].copy()
+    if name == "res320":
+        return lambda im: cv2.resize(im, (320, 240), interpolation=cv2.INTER_AREA)
+    if name == "wide":
+        return lambda im: im[(im.shape[0] - 360) // 2 :][:360]
+    return lambda im: im
+
+
+def _pose(name: str, M: np.ndarray) -> np.ndarray:
+    """Ground-truth camera-to-world 4x4 ``M`` of the changed image."""
+    if name == "mirror":
+        return F @ M @ F
+    if name == "portrait":
+        return M @ RZ.T
+    return M
+
+
+def write_variant(clip: Path, out: Path, name: str) -> Path:
+    """Write variant ``name`` of ``clip`` into ``out / name``; returns the folder (the video
+    file for ``video``)."""
+    rgb = natsorted(clip.glob("frame-*.color.*"))
+    dst = out / name
+    (dst / "rgb").mkdir(parents=True, exist_ok=True)
+    if name == "video":
+        first = cv2.imread(str(rgb[0]))
+        H, W = first.shape[:2]
+        path = dst / "clip.mp4"
+        vw = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), 30.0, (W, H))
+        for src in rgb:
+            vw.write(cv2.imread(str(src)))
+        vw.release()
+        return path
+    rgb_lines, gt_lines = [], []
+    for k, i in enumerate(_order(name, len(rgb))):
+        src = rgb[i]
+        img = _image_op(name, k)(cv2.imread(str(src)))
+        file = dst / "rgb" / f"{k:06d}.png"
+        cv2.imwrite(str(file), img)
+        t = k * DT
+        stem = src.name.split(".color.")[0]
+        T = matrix_to_T_WC(_pose(name, read_pose_matrix(clip / f"{stem}.pose.txt")))
+        rgb_lines.append(f"{t:.6f} rgb/{file.name}")
+        gt_lines.append(f"{t:.6f} " + " ".join(f"{v:.9f}" for v in T[:7]))
+    (dst / "rgb.txt").write_text("\n".join(rgb_lines) + "\n")
+    (dst / "groundtruth.txt").write_text("\n".join(gt_lines) + "\n")
+    return dst
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
+    ap.add_argument("out", type=Path)
+    ap.add_argument("--clip", type=Path, default=None, help="default: the shared 7-Scenes clip")
+    ap.add_argument("--only", nargs="*", default=list(NAMES), choices=NAMES)
+    args = ap.parse_args(argv)
+    clip = args.clip or seven_scenes()
+    if not clip.is_dir():
+        print(f"{clip}: clip folder not found", file=sys.stderr)
+        return 2
+    for name in args.only:
+        print(write_variant(clip, args.out, name))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
