@@ -11,6 +11,9 @@ prior accepts them) whose images are the clip's colour images changed in one way
 * ``static`` — the first frame repeated 20 times before the clip (a camera at rest);
 * ``pause`` — frame 75 repeated 20 times (a camera that stops in the middle);
 * ``dup`` — every 4th frame shown twice (a 24 Hz video converted to 30 Hz);
+* ``dark`` — frames 70-84 nearly black with sensor noise (a covered lens, a light going out);
+* ``cut`` — frames 0-74, then 149 back to 75 (the video cuts to the other end of the walk and
+  comes back over it);
 * ``drops`` — frames 50-53 and 100-104 left out (a video dropping frames);
 * ``res320`` — every frame at 320x240;
 * ``wide`` — the central 640x360 pixels (16:9);
@@ -50,6 +53,8 @@ STATIC_FRAMES = 20
 PAUSE_AT = 75
 #: Frames left out by ``drops`` (two bursts of 4 and 5).
 DROPPED = set(range(50, 54)) | set(range(100, 105))
+#: Frames of ``dark`` that are nearly black.
+DARK = range(70, 85)
 #: Motion-blur length of ``blur`` (pixels at 640x480).
 BLUR_PX = 15
 #: JPEG quality of ``jpeg``.
@@ -66,6 +71,8 @@ NAMES = (
     "static",
     "pause",
     "dup",
+    "dark",
+    "cut",
     "drops",
     "res320",
     "wide",
@@ -86,6 +93,8 @@ def _order(name: str, n: int) -> list[int]:
         return [i for i in range(n) for _ in range(2 if i % 4 == 3 else 1)]
     if name == "drops":
         return [i for i in range(n) if i not in DROPPED]
+    if name == "cut":
+        return list(range(n // 2)) + list(range(n - 1, n // 2 - 1, -1))
     return list(range(n))
 
 
@@ -94,6 +103,9 @@ def _image_op(name: str, k: int) -> Callable[[np.ndarray], np.ndarray]:
     if name == "exposure":
         gain = 2.0 ** np.sin(2 * np.pi * k / EXPOSURE_PERIOD)
         return lambda im: np.clip(im.astype(np.float32) * gain, 0, 255).astype(np.uint8)
+    if name == "dark" and k in DARK:
+        rng = np.random.default_rng(k)
+        return lambda im: np.clip(rng.normal(4.0, 2.0, im.shape), 0, 255).astype(np.uint8)
     if name == "blur":
         kern = np.full((1, BLUR_PX), 1.0 / BLUR_PX, np.float32)
         return lambda im: cv2.filter2D(im, -1, kern, borderType=cv2.BORDER_REFLECT)

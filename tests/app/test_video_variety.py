@@ -6,6 +6,8 @@
   the spread watch's factor 2 over 8 keyframes. That is the walk, not a runaway map: the watch
   takes out the change that the keyframes' motion along their optical axes explains, and
   still reports the same scale change without that motion.
+* A camera at rest at the start (identical images): the frames wait for the first pair with
+  parallax and are posed, instead of each restarting the wait and staying unposed.
 """
 
 from __future__ import annotations
@@ -44,6 +46,7 @@ def test_the_spread_watch_accepts_a_camera_walking_towards_a_wall() -> None:
     assert np.all(np.diff(dist) < 0)
     normalised = np.ones(N_KF)  # the canonical pointmaps' median distance
     assert map_spread(T, cfg, normalised) is None
+    assert map_spread(T[::-1], cfg, normalised) is None  # walking away: the scale grows
     # Without the depths the same scales read as a drift ...
     assert "scale shrank" in map_spread(T, cfg)
     # ... and with them, the same scales on a camera that does not approach the scene do too.
@@ -54,3 +57,35 @@ def test_the_spread_watch_accepts_a_camera_walking_towards_a_wall() -> None:
     metric = T.copy()
     metric[:, 7] = 1.0
     assert map_spread(metric, cfg, dist) is None
+
+
+STILL = 5  # frames of the camera at rest at the start
+MOVING = 6  # frames after it
+
+
+def test_a_camera_at_rest_at_the_start_is_posed_not_lost() -> None:
+    """The same image ``STILL`` times (a camera at rest, a video encoder repeating a frame),
+    then the forward walk: the two-view prior cannot match a pair of identical images, yet the
+    frames at rest wait for the first pair with parallax and are posed with the view they show
+    (keyframe 0's)."""
+    import dataclasses
+
+    from mslam.config import load_config
+    from mslam.datasets.synthetic import make_sequence
+    from mslam.kernels import load_kernels
+    from mslam.priors.twoview import TwoViewPrior
+    from mslam.system.frontend import SlamSystem
+
+    seq = make_sequence("forward", n_frames=40, width=128, height=96, seed=0)
+    frames = [seq[0]] * STILL + [seq[i] for i in range(1, MOVING + 1)]
+    frames = [dataclasses.replace(f, index=k) for k, f in enumerate(frames)]
+    system = SlamSystem(TwoViewPrior(), load_config("twoview"), load_kernels("ref"))
+    statuses = [system.process(f) for f in frames]
+    assert statuses[:STILL] == ["waiting"] * STILL and "keyframe" in statuses
+    idx, _, T = system.frame_poses()
+    assert set(range(STILL)) <= set(idx.tolist())
+    assert system.keyframes[0].frame.index == 0
+    # Each frame at rest is where keyframe 0 is, far closer to it than to keyframe 1.
+    c0, c1 = system.keyframes[0].T_WC[:3], system.keyframes[1].T_WC[:3]
+    still = T[np.isin(idx, range(STILL)), :3]
+    assert np.all(np.linalg.norm(still - c0, axis=1) < np.linalg.norm(still - c1, axis=1))

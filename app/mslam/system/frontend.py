@@ -127,7 +127,7 @@ class SlamSystem(ParallaxSteps):
         """One frame through the mode machine (module docstring), then the recovery test."""
         self.stats.frames += 1
         if self.mode == Mode.INIT and getattr(self.prior, "needs_parallax", False):
-            status = self.init_with_parallax(frame)
+            status = self.wait_if_still(frame) or self.init_with_parallax(frame)
         elif self.mode == Mode.INIT:
             status = self.init_mono(frame)
         elif self.mode == Mode.RELOC:
@@ -141,6 +141,19 @@ class SlamSystem(ParallaxSteps):
         if why is not None and self.mode != Mode.INIT:
             self.start_new_map(frame, why)
         return status
+
+    def wait_if_still(self, frame: Frame) -> FrameStatus | None:
+        """INIT for priors that need parallax: a frame whose image is the waiting candidate's,
+        pixel for pixel (a camera at rest, a video encoder repeating a frame), shows the same
+        view; it waits with the candidate and is posed with the other waiting frames. A prior
+        may call such a pair unmatched (no correspondence survives a zero-motion model fit),
+        which would restart the wait from the frame and leave the earlier ones unposed.
+        Returns ``WAITING``, or None for any other frame."""
+        cand = self.init_candidate
+        if cand is None or not np.array_equal(frame.rgb, cand.rgb):
+            return None
+        self.init_pending.append(frame)
+        return FrameStatus.WAITING
 
     def start_new_map(self, frame: Frame, reason: str) -> None:
         """Give the current map up (``mslam.system.recovery``): the next frames initialise a
