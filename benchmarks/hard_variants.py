@@ -27,12 +27,14 @@ turned about its optical axis (``M Rz^T``). Synthetic sources need no files: run
 
 Usage: ``python benchmarks/hard_variants.py OUT_DIR [--clip FOLDER] [--only NAME ...]``, then
 ``mslam run OUT_DIR/NAME --prior twoview --out RUN`` (``OUT_DIR/video/clip.mp4`` for ``video``)
-and ``python benchmarks/video_variants.py --table RUN ...`` for one line per run.
+and ``python benchmarks/hard_variants.py --table RUN ...`` for one Markdown row per run
+(posed share, ATE, keyframes, frames per second, plausible, maps, warnings).
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -167,12 +169,36 @@ def write_variant(clip: Path, out: Path, name: str) -> Path:
     return dst
 
 
+def table_row(run: Path) -> str:
+    """One Markdown row of a run's ``summary.json``."""
+    s = json.loads((run / "summary.json").read_text())
+    ate = s.get("ate_rmse")
+    return (
+        f"| {run.name} | {s['frames']} | {100 * s['frames_posed_fraction']:.1f} | "
+        f"{'-' if ate is None else f'{100 * ate:.2f}'} | {s['keyframes']} | "
+        f"{s['frames_per_second']:.2f} | {s['plausible']} | {len(s['maps'])} | "
+        f"{'; '.join(s['warnings']) or '-'} |"
+    )
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
-    ap.add_argument("out", type=Path)
+    ap.add_argument("out", type=Path, nargs="?")
+    ap.add_argument("--table", type=Path, nargs="*", default=None, help="runs to tabulate")
     ap.add_argument("--clip", type=Path, default=None, help="default: the shared 7-Scenes clip")
     ap.add_argument("--only", nargs="*", default=list(NAMES), choices=NAMES)
     args = ap.parse_args(argv)
+    if args.table is not None:
+        print(
+            "| run | frames | posed % | ATE cm | keyframes | frames/s | plausible | maps | warnings |"
+        )
+        print("|---|---|---|---|---|---|---|---|---|")
+        for run in args.table:
+            print(table_row(run))
+        return 0
+    if args.out is None:
+        print("OUT_DIR: required unless --table", file=sys.stderr)
+        return 2
     clip = args.clip or seven_scenes()
     if not clip.is_dir():
         print(f"{clip}: clip folder not found", file=sys.stderr)
