@@ -89,3 +89,86 @@ def test_a_camera_at_rest_at_the_start_is_posed_not_lost() -> None:
     c0, c1 = system.keyframes[0].T_WC[:3], system.keyframes[1].T_WC[:3]
     still = T[np.isin(idx, range(STILL)), :3]
     assert np.all(np.linalg.norm(still - c0, axis=1) < np.linalg.norm(still - c1, axis=1))
+
+
+def test_blank_lost_frames_do_not_start_a_new_map() -> None:
+    """Lost frames far darker and flatter than the posed ones (a covered lens) neither count
+    towards ``max_lost_frames`` nor break a run of informative lost frames."""
+    from mslam.system.recovery import Recovery, RecoveryConfig, frame_contrast
+    from mslam.system.state import FrameStatus
+
+    rng = np.random.default_rng(0)
+    scene = rng.integers(0, 256, (24, 32, 3)).astype(np.uint8)
+    dark = rng.normal(4.0, 2.0, (24, 32, 3)).clip(0, 255).astype(np.uint8)
+    c_scene, c_dark = frame_contrast(scene), frame_contrast(dark)
+    rec = Recovery(RecoveryConfig(max_lost_frames=3))
+    lost, tracked = FrameStatus.LOST, FrameStatus.TRACKED
+    assert rec.after_frame(0, lost, [], c_dark) is None  # no posed frame yet: counts
+    assert rec.after_frame(1, tracked, [], c_scene) is None
+    assert all(rec.after_frame(i, lost, [], c_dark) is None for i in range(2, 40))
+    assert rec.blank_frames == 38
+    assert rec.after_frame(40, lost, [], c_scene) is None
+    assert rec.after_frame(41, lost, [], c_dark) is None  # blank: the run goes on ...
+    assert rec.after_frame(42, lost, [], c_scene) is None
+    assert "3 consecutive frames lost" in rec.after_frame(43, lost, [], c_scene)  # ... to 3
+
+
+DARK = range(24, 30)  # frames of the synthetic loop behind a covered lens
+MAX_LOST = 4  # recovery.max_lost_frames of that run
+
+
+class _CoveredPrior:
+    """Wraps a prior; pairs with a frame in ``dark`` get the lowest confidence (1) and no
+    descriptor quality, as a prior would give for a black image."""
+
+    def __init__(self, prior, dark: range) -> None:
+        self._p, self._dark = prior, dark
+
+    def __getattr__(self, name):
+        return getattr(self._p, name)
+
+    def mono(self, frame):
+        X, C = self._p.mono(frame)
+        return X, (np.ones_like(C) if frame.index in self._dark else C)
+
+    def pair(self, frame_i, frame_j):
+        import dataclasses
+
+        p = self._p.pair(frame_i, frame_j)
+        if frame_i.index not in self._dark and frame_j.index not in self._dark:
+            return p
+        one, z = np.ones_like, np.zeros_like
+        return dataclasses.replace(
+            p, C_ii=one(p.C_ii), C_ji=one(p.C_ji), Q_ii=z(p.Q_ii), Q_ji=z(p.Q_ji)
+        )
+
+
+def test_a_covered_lens_does_not_start_a_new_map() -> None:
+    """Six black frames (sensor noise only) that nothing can be matched in: tracking is lost
+    for all of them, more than ``recovery.max_lost_frames``, yet they are blank, so no new map
+    is started during them; one starts only after ``max_lost_frames`` informative frames have
+    failed to relocalise too (on this 64x48 loop they do), and the blank frames are counted."""
+    import dataclasses
+
+    import mslam_fast
+    from mslam.config import load_config
+    from mslam.kernels import load_kernels
+    from mslam.system import open_source
+    from mslam.system.frontend import SlamSystem
+
+    mslam_fast.init("cpu", "f64")
+    cfg = load_config(None, [f"recovery.max_lost_frames={MAX_LOST}"])
+    src = open_source("synthetic:loop:96:64x48", cfg)
+    rng = np.random.default_rng(0)
+    system = SlamSystem(_CoveredPrior(src.prior, DARK), cfg, load_kernels("fast"), src.K)
+    statuses = []
+    for i in range(DARK.stop + 2 * MAX_LOST):
+        f = src.sequence[i]
+        if i in DARK:
+            noise = rng.normal(4.0, 2.0, f.rgb.shape).clip(0, 255).astype(np.uint8)
+            f = dataclasses.replace(f, rgb=noise)
+        statuses.append(system.process(f))
+    assert all(statuses[i] == "lost" for i in DARK) and len(DARK) > MAX_LOST
+    assert system.recovery.blank_frames == len(DARK)
+    starts = [m["first_frame"] for m in system.recovery.maps[1:]]
+    assert all(f >= DARK.stop + MAX_LOST - 1 for f in starts), starts

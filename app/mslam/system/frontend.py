@@ -50,7 +50,7 @@ from mslam.system.global_opt import Backend
 from mslam.system.graph import FactorGraph
 from mslam.system.keyframes import KeyframeStore
 from mslam.system.parallax import ParallaxSteps, TrackedFrame
-from mslam.system.recovery import Recovery, RecoveryConfig
+from mslam.system.recovery import Recovery, RecoveryConfig, frame_contrast
 from mslam.system.reloc import relocalise
 from mslam.system.retrieval_features import RetrievalIndex
 from mslam.system.state import FramePose, FrameStatus, Mode, RunStats
@@ -137,7 +137,9 @@ class SlamSystem(ParallaxSteps):
             if status == FrameStatus.LOST:
                 self.lose_tracking()
         refused = self.divergence.refused_frames()
-        why = self.recovery.after_frame(int(frame.index), status, refused)
+        why = self.recovery.after_frame(
+            int(frame.index), status, refused, frame_contrast(frame.rgb)
+        )
         if why is not None and self.mode != Mode.INIT:
             self.start_new_map(frame, why)
         return status

@@ -5,7 +5,10 @@ keeps failing, or the divergence watch keeps refusing poses, the frontend gives 
 starts a new one from the incoming frames, as at the start of a run:
 
 * ``recovery.max_lost_frames`` consecutive frames without a pose (relocalisation failed on
-  each), or
+  each; a *blank* frame, one whose contrast is below ``BLANK_CONTRAST_FRAC`` of the recent
+  posed frames' median, neither counts nor breaks the run: a covered lens or a light going out
+  shows nothing to relocalise with, not another place, and the frames after it may rejoin the
+  map), or
 * ``recovery.max_refusals`` frame poses refused by the divergence watch
   (``mslam.system.divergence``) within the last ``recovery.refusal_window`` frames.
 
@@ -21,7 +24,7 @@ scale relate to the old map's is only as good as that one pose, and the maps are
 reason) and one sentence per new map in ``warnings``.
 
 Public names, in reading order:
-    RecoveryConfig, Recovery
+    frame_contrast, RecoveryConfig, Recovery
 """
 
 from __future__ import annotations
@@ -31,9 +34,25 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, fields
 from typing import Any
 
+import numpy as np
+
 from mslam.system.state import FramePose, FrameStatus
 
-__all__ = ["Recovery", "RecoveryConfig"]
+__all__ = ["BLANK_CONTRAST_FRAC", "Recovery", "RecoveryConfig", "frame_contrast"]
+
+#: A lost frame whose contrast is below this share of the median contrast of the last
+#: ``CONTRAST_WINDOW`` posed frames is blank (module docstring). The 7-Scenes kitchen frames
+#: have a grey-level standard deviation of 40-70; a covered lens' sensor noise a few units.
+BLANK_CONTRAST_FRAC = 0.1
+#: Posed frames whose contrast gives the reference of :data:`BLANK_CONTRAST_FRAC`.
+CONTRAST_WINDOW = 30
+
+
+def frame_contrast(rgb: np.ndarray) -> float:
+    """Standard deviation of the grey levels (channel mean) of an (H, W, 3) or (H, W) image,
+    over every second row and column."""
+    a = np.asarray(rgb, dtype=np.float32)[::2, ::2]
+    return float(np.std(a.mean(axis=-1) if a.ndim == 3 else a))
 
 
 @dataclass(frozen=True)
@@ -78,13 +97,32 @@ class Recovery:
         self._lost_run = 0
         self._refused: deque[int] = deque()  # frame indices of recent refusals
         self._events_seen = 0
+        self._contrast: deque[float] = deque(maxlen=CONTRAST_WINDOW)  # of recent posed frames
+        self.blank_frames = 0
 
-    def after_frame(self, index: int, status: FrameStatus, refused: list[int]) -> str | None:
-        """Count frame ``index`` (its ``status``) and the refusals so far (``refused``: the
-        frame index of every refused pose of the run); the reason to start a new map, or None.
+    def is_blank(self, contrast: float | None) -> bool:
+        """Whether a frame of this ``contrast`` (:func:`frame_contrast`) is blank: below
+        :data:`BLANK_CONTRAST_FRAC` of the recent posed frames' median (never before one)."""
+        if contrast is None or not self._contrast:
+            return False
+        return contrast < BLANK_CONTRAST_FRAC * float(np.median(self._contrast))
+
+    def after_frame(
+        self, index: int, status: FrameStatus, refused: list[int], contrast: float | None = None
+    ) -> str | None:
+        """Count frame ``index`` (its ``status`` and its image's ``contrast``, None when
+        unknown) and the refusals so far (``refused``: the frame index of every refused pose of
+        the run); the reason to start a new map, or None.
         """
         cfg = self.cfg
-        self._lost_run = self._lost_run + 1 if status == FrameStatus.LOST else 0
+        if status != FrameStatus.LOST:
+            self._lost_run = 0
+            if contrast is not None and status != FrameStatus.WAITING:
+                self._contrast.append(float(contrast))
+        elif self.is_blank(contrast):
+            self.blank_frames += 1
+        else:
+            self._lost_run += 1
         self._refused.extend(refused[self._events_seen :])
         self._events_seen = len(refused)
         while self._refused and self._refused[0] <= index - cfg.refusal_window:
