@@ -7,7 +7,9 @@
   takes out the change that the keyframes' motion along their optical axes explains, and
   still reports the same scale change without that motion.
 * A camera at rest at the start (identical images): the frames wait for the first pair with
-  parallax and are posed, instead of each restarting the wait and staying unposed.
+  parallax and are posed, instead of each restarting the wait and staying unposed; the first
+  step after the rest is no jump for the divergence watch.
+* A covered lens (black frames): lost, but blank, so they do not count towards a new map.
 """
 
 from __future__ import annotations
@@ -172,3 +174,24 @@ def test_a_covered_lens_does_not_start_a_new_map() -> None:
     assert system.recovery.blank_frames == len(DARK)
     starts = [m["first_frame"] for m in system.recovery.maps[1:]]
     assert all(f >= DARK.stop + MAX_LOST - 1 for f in starts), starts
+
+
+def test_a_camera_starting_to_move_after_rest_is_no_jump() -> None:
+    """Twenty frames at rest (steps of 1e-4, tracking noise), then steps of 3 mm at scale 1:
+    the first moving step is 30 median steps but a small share of the scale, so neither the
+    monitor nor the final-trajectory check calls it a jump; a step of half the scale is one."""
+    from mslam.system.divergence import DivergenceMonitor, trajectory_warnings
+
+    rng = np.random.default_rng(0)
+    x = np.concatenate([1e-4 * rng.standard_normal(20), 0.003 * np.arange(1, 81)])
+    T = np.zeros((len(x), 8))
+    T[:, 0], T[:, 6], T[:, 7] = x, 1.0, 1.0
+    mon = DivergenceMonitor()
+    assert all(mon.check(k, t) for k, t in enumerate(T)) and mon.events == []
+    assert trajectory_warnings(T) == []
+    jump = T.copy()
+    jump[60:, 0] += 0.5
+    assert any("jumps" in w for w in trajectory_warnings(jump))
+    mon2 = DivergenceMonitor()
+    assert all(mon2.check(k, t) for k, t in enumerate(T[:60]))
+    assert not mon2.check(60, jump[60])

@@ -6,7 +6,10 @@ never against a number of metres:
 * a pose that is not finite, or whose Sim(3) scale is not positive and finite;
 * a frame whose camera centre moved more than ``jump_factor`` times the median step of the
   last ``window`` accepted frames (and more than ``min_jump_frac`` of the extent of the
-  trajectory so far, so that a camera starting to move after standing still is no jump);
+  trajectory so far, and more than ``min_jump_scale_frac`` of the last accepted Sim(3) scale,
+  so that a camera starting to move after standing still is no jump: at rest the median step
+  and the extent are both near zero, while the scale is the scene's distance for a prior that
+  normalises its pointmaps and one unit for a metric one);
 * a frame whose Sim(3) scale changed by more than a factor ``max_scale_ratio`` from the
   previous accepted frame.
 
@@ -83,6 +86,9 @@ class DivergenceConfig:
             changes (1: every step the same way), is a drift.
         max_spacing_growth: recent median keyframe spacing beyond this many times the map's
             first median spacing is a spreading map.
+        min_jump_scale_frac: a step shorter than this share of the Sim(3) scale (the last
+            accepted frame's; in the final trajectory, the smaller of its two frames') is
+            never a jump.
     """
 
     window: int = 20
@@ -97,6 +103,7 @@ class DivergenceConfig:
     max_scale_drift: float = 2.0
     min_drift_trend: float = 0.8
     max_spacing_growth: float = 25.0
+    min_jump_scale_frac: float = 0.05
 
 
 @dataclass
@@ -165,7 +172,9 @@ class DivergenceMonitor:
             step = float(np.linalg.norm(T[:3] - c[-1]))
             extent = float(np.linalg.norm(self._hi - self._lo))
             limit = max(
-                self.cfg.jump_factor * float(np.median(steps)), self.cfg.min_jump_frac * extent
+                self.cfg.jump_factor * float(np.median(steps)),
+                self.cfg.min_jump_frac * extent,
+                self.cfg.min_jump_scale_frac * (self._last_scale or 0.0),
             )
             if step > limit and step > 0:
                 return f"camera moved {step:.3g} in one frame (recent median step {np.median(steps):.3g})"
@@ -316,10 +325,14 @@ def trajectory_warnings(T_WC: FloatArray, cfg: DivergenceConfig = DivergenceConf
     # The first quarter's median too: a run that diverges for most of its frames has a large
     # overall median step.
     med = min(float(np.median(steps)), float(np.median(steps[: max(1, len(steps) // 4)])))
-    if med > 0 and steps.max() > cfg.max_final_jump * med:
-        k = int(np.argmax(steps))
+    # A step within a small share of the frame's scale is no jump (a camera that stood still
+    # for the first quarter has a median step near zero there).
+    sc = np.abs(T[finite, 7])
+    big = np.where(steps > cfg.min_jump_scale_frac * np.minimum(sc[:-1], sc[1:]), steps, 0.0)
+    if med > 0 and big.max() > cfg.max_final_jump * med:
+        k = int(np.argmax(big))
         out.append(
-            f"the trajectory jumps {steps.max() / med:.3g} median steps between posed frames "
+            f"the trajectory jumps {big.max() / med:.3g} median steps between posed frames "
             f"{k} and {k + 1}; positions after a jump are not trustworthy"
         )
     s = T[finite, 7]
