@@ -17,6 +17,7 @@ prior accepts them) whose images are the clip's colour images changed in one way
 * ``drops`` — frames 50-53 and 100-104 left out (a video dropping frames);
 * ``res320`` — every frame at 320x240;
 * ``wide`` — the central 640x360 pixels (16:9);
+* ``phone`` — ``static``, ``portrait``, ``exposure``, ``blur`` and ``jpeg`` at once;
 * ``video`` — the clip as an MPEG-4 video file ``video/clip.mp4`` (the video loader; no
   ground truth).
 
@@ -78,6 +79,7 @@ NAMES = (
     "drops",
     "res320",
     "wide",
+    "phone",
     "video",
 )
 
@@ -86,8 +88,12 @@ F = np.diag([-1.0, 1.0, 1.0, 1.0])
 RZ = np.array([[0.0, -1, 0, 0], [1, 0, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]])
 
 
+#: The changes ``phone`` combines, in the order they are applied.
+PHONE = ("exposure", "blur", "jpeg", "portrait")
+
+
 def _order(name: str, n: int) -> list[int]:
-    if name == "static":
+    if name in ("static", "phone"):
         return [0] * STATIC_FRAMES + list(range(n))
     if name == "pause":
         return list(range(PAUSE_AT)) + [PAUSE_AT] * STATIC_FRAMES + list(range(PAUSE_AT, n))
@@ -102,6 +108,15 @@ def _order(name: str, n: int) -> list[int]:
 
 def _image_op(name: str, k: int) -> Callable[[np.ndarray], np.ndarray]:
     """The change applied to the ``k``-th written image (BGR uint8 in and out)."""
+    if name == "phone":
+        ops = [_image_op(m, k) for m in PHONE]
+
+        def phone(im: np.ndarray) -> np.ndarray:
+            for op in ops:
+                im = op(im)
+            return im
+
+        return phone
     if name == "exposure":
         gain = 2.0 ** np.sin(2 * np.pi * k / EXPOSURE_PERIOD)
         return lambda im: np.clip(im.astype(np.float32) * gain, 0, 255).astype(np.uint8)
@@ -133,7 +148,7 @@ def _pose(name: str, M: np.ndarray) -> np.ndarray:
     """Ground-truth camera-to-world 4x4 ``M`` of the changed image."""
     if name == "mirror":
         return F @ M @ F
-    if name == "portrait":
+    if name in ("portrait", "phone"):
         return M @ RZ.T
     return M
 
