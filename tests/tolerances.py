@@ -160,3 +160,7 @@ PAIR_SCALE_REL = 0.02
 #: a keyframe's log-range ratio against exact overlapping keyframes (nearest-pixel lookup of a
 #: rendered scene's depth; map_scale)
 SCALE_CONSENSUS = 0.02
+#: a frame's points taken from its keyframe through a pure rotation (mslam.system.parallax
+#: rotated_pointmap) against the exact ray-surface intersection, relative: the nearest keyframe
+#: pixel is up to half a pixel off the ray (96x72, a relief of slope ~0.06 per pixel)
+ROTATED_POINTMAP_REL = 0.03
