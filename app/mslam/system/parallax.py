@@ -26,9 +26,10 @@ pairs without parallax apart:
 * a frame posed by rotation alone has no depth of its own (its pair's depths are noise): when
   it becomes a keyframe, its pointmap is its keyframe's, seen through its rays from the same
   centre (:func:`rotated_pointmap`). A keyframe that kept the pair's noise depths spoils the
-  edges and relocalisations against it (``synthetic:rotation:60``, 2026-11-26: the backend's
-  solve diverged at frame 34; with ``C_conf: 0`` the frames after a relocalisation against it
-  were 23-29° off their true orientation, with its rotated pointmap 4-10°).
+  edges and relocalisations against it (``synthetic:rotation:60`` at 128x96, 2026-11-26:
+  the backend's solve diverged at frame 34; with tracking's ``C_conf`` at 0 the frames after
+  the relocalisation at frame 41 were 23-29° off their true orientation; with the rotated
+  pointmap the run relocalises at frame 41 and those frames are 4-10° off).
 
 Public names, in reading order:
     prior_status, parallax_px, pinhole_of, rotated_pointmap, KeyframePair, TrackedFrame,
