@@ -166,6 +166,6 @@ SCALE_CONSENSUS = 0.02
 ROTATED_POINTMAP_REL = 0.03
 #: orientation of every frame of ``synthetic:rotation:60`` (128x96, two-view prior, 60° focal
 #: guess for a 70° camera) against the truth, relative to the first posed frame, degrees:
-#: measured 2026-11-26 at most 9.6° (4-10° after the relocalisation at frame 41; 23-29° when
+#: measured 2026-11-26 at most 10.3° (2-10° after the relocalisation at frame 40; 23-29° when
 #: the keyframes posed by rotation kept their pairs' noise depths)
 ROTATION_ONLY_ORIENTATION_DEG = 12.0

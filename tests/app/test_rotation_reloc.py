@@ -47,7 +47,7 @@ def rotation_errors():
 def test_frames_after_relocalisation_keep_their_orientation(rotation_errors) -> None:
     _, idx, err, status = rotation_errors
     reloc = [int(i) for i in idx if status.get(int(i)) == FrameStatus.RELOCALISED]
-    assert reloc, "the scenario relocalises once tracking is lost (measured 2026-11-26: frame 41)"
+    assert reloc, "the scenario relocalises once tracking is lost (measured 2026-11-26: frame 40)"
     after = idx >= reloc[0]
     assert err[after].max() < ROTATION_ONLY_ORIENTATION_DEG, err[after].round(1)
 

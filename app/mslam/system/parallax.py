@@ -29,7 +29,8 @@ pairs without parallax apart:
   edges and relocalisations against it (``synthetic:rotation:60`` at 128x96, 2026-11-26:
   the backend's solve diverged at frame 34; with tracking's ``C_conf`` at 0 the frames after
   the relocalisation at frame 41 were 23-29° off their true orientation; with the rotated
-  pointmap the run relocalises at frame 41 and those frames are 4-10° off).
+  pointmap the run relocalises at frame 40, 0.7° further off than the last frame before the
+  loss, and the frames after it are 2-10° off, as before the loss).
 
 Public names, in reading order:
     prior_status, parallax_px, pinhole_of, rotated_pointmap, KeyframePair, TrackedFrame,
