@@ -39,7 +39,7 @@ def _status(angle_deg: float, p: PairPrediction) -> str:
     """``ParallaxSteps.pair_status`` for a prior that accepted the pair at this angle."""
     prior = SimpleNamespace(last_status="ok", last_info={"angle_deg": angle_deg})
     steps = SimpleNamespace(prior=prior, cfg=load_config("twoview"))
-    return str(ParallaxSteps.pair_status(steps, p))  # type: ignore[arg-type]
+    return str(ParallaxSteps.pair_status(steps, p))  # the method reads only prior and cfg
 
 
 @pytest.mark.parametrize(("W", "H"), SIZES)
