@@ -6,10 +6,13 @@ pairs without parallax apart:
 
 * INIT waits for a first pair with parallax (:meth:`ParallaxSteps.init_with_parallax`);
 * a pair is *without parallax* when the prior says so (``last_status == "parallax"``) or when
-  its median triangulation angle (``last_info["angle_deg"]``) is below
-  ``tracking.min_pair_angle_deg`` (0.12° by default: at 160 px across a ~60° view a pixel
-  subtends ~0.4°, so a third of a pixel of parallax, below what optical flow resolves; the
-  depths of such a pair are noise, and so are its pointmaps' rays when the translation is);
+  its median triangulation angle θ (``last_info["angle_deg"]``), as pixels of parallax
+  ``f · θ`` through the focal length of the pair's pointmap (:func:`parallax_px`), is below
+  ``tracking.min_pair_parallax_px`` (0.29 px by default, about twice the median error of DIS
+  flow; 0.12° at 160x120 with the 60° guess, 0.03° at 640x480). Flow errors are a number of
+  pixels at any image size, so a cut-off in pixels means the same at every resolution, where
+  one in degrees would be a fraction of a pixel at one size and several pixels at another.
+  The depths of such a pair are noise, and so are its pointmaps' rays when the translation is;
 * such a frame is tracked against the keyframe before the last one when that pair has
   parallax (never becoming a keyframe), else posed by rotation alone
   (:meth:`ParallaxSteps.track_rotation_only`: the prior's rotation, or the rotation of a
@@ -19,32 +22,50 @@ pairs without parallax apart:
   longer match the frame to the keyframe (``last_status == "few_inliers"``); the last frame
   tracked or posed by rotation then becomes the keyframe
   (:meth:`ParallaxSteps.promote_last_tracked`). Under a pure rotation this makes a keyframe per
-  loss of overlap, not per frame (``synthetic:rotation:60``: numbers in docs/reliability.md).
+  loss of overlap, not per frame (``synthetic:rotation:60``: numbers in docs/reliability.md);
+* a frame posed by rotation alone has no depth of its own (its pair's depths are noise): when
+  it becomes a keyframe, its pointmap is its keyframe's, seen through its rays from the same
+  centre (:func:`rotated_pointmap`). A keyframe that kept the pair's noise depths spoils the
+  edges and relocalisations against it (``synthetic:rotation:60`` at 128x96, 2026-11-26:
+  the backend's solve diverged at frame 34; with tracking's ``C_conf`` at 0 the frames after
+  the relocalisation at frame 41 were 23-29° off their true orientation; with the rotated
+  pointmap the run relocalises at frame 40, 0.7° further off than the last frame before the
+  loss, and the frames after it are 2-10° off, as before the loss).
 
 Public names, in reading order:
-    prior_status, KeyframePair, TrackedFrame, ParallaxSteps
+    prior_status, parallax_px, pinhole_of, rotated_pointmap, KeyframePair, TrackedFrame,
+    ParallaxSteps
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from mslam.config import SlamConfig
 from mslam.datasets.frame import Frame
-from mslam.priors.base import PairPrediction, Prior
+from mslam.priors.base import NO_INFO_C, PairPrediction, Prior
 from mslam.system.global_opt import Backend
 from mslam.system.state import FramePose, FrameStatus, Mode, RunStats
 from mslam.system.tracker import Tracker
-from mslam_ref import sim3, so3
+from mslam_ref import fusion, sim3, so3
 from mslam_ref.conventions import FloatArray
 
-__all__ = ["KeyframePair", "ParallaxSteps", "TrackedFrame", "prior_status"]
+__all__ = [
+    "KeyframePair",
+    "ParallaxSteps",
+    "TrackedFrame",
+    "parallax_px",
+    "pinhole_of",
+    "prior_status",
+    "rotated_pointmap",
+]
 
-#: Default of ``tracking.min_pair_angle_deg`` (module docstring).
-MIN_PAIR_ANGLE_DEG = 0.12
+#: Default of ``tracking.min_pair_parallax_px`` (module docstring): about twice the median
+#: error of DIS flow on textured images (~0.15 px, docs/priors.md).
+MIN_PAIR_PARALLAX_PX = 0.29
 
 
 def prior_status(prior: Prior) -> str:
@@ -70,11 +91,93 @@ class KeyframePair:
 
 @dataclass(frozen=True)
 class TrackedFrame:
-    """The last tracked frame, kept in case it must become a keyframe late."""
+    """The last tracked frame, kept in case it must become a keyframe late.
+
+    ``rotated_from``: the keyframe the frame was posed against by rotation alone, else None;
+    ``R_kf``: (3, 3) that rotation, frame to keyframe (``T_CkCf = (0, R_kf, 1)``).
+    """
 
     frame: Frame
     T_WC: FloatArray
     p: PairPrediction
+    rotated_from: int | None = None
+    R_kf: FloatArray | None = None
+
+
+def parallax_px(angle_deg: float, X: FloatArray) -> float:
+    """A triangulation angle as pixels of parallax: ``f · θ`` (θ in radians), with ``f`` the
+    mean focal length of the pinhole of the pair's pointmap ``X`` (H, W, 3) (:func:`pinhole_of`).
+
+    The same angle is a fraction of a pixel in a small image and several pixels in a large
+    one; optical flow resolves a fixed number of pixels at any size.
+    """
+    fx, fy, _, _ = pinhole_of(X)
+    return 0.5 * (abs(fx) + abs(fy)) * float(np.radians(angle_deg))
+
+
+def pinhole_of(X: FloatArray) -> tuple[float, float, float, float]:
+    """``fx, fy, cx, cy`` of the pinhole that best explains a pointmap's rays.
+
+    Least squares on ``u = fx · x/z + cx`` and ``v = fy · y/z + cy`` over the pixels with
+    ``z > 0``. Exact for a pointmap back-projected through a pinhole (the two-view prior's),
+    the closest pinhole otherwise.
+
+    Args:
+        X: (H, W, 3) points in the camera.
+
+    Returns:
+        the four intrinsics in pixels.
+    """
+    H, W = X.shape[:2]
+    v, u = np.mgrid[0:H, 0:W].astype(np.float64)
+    z = X[..., 2]
+    ok = z > 1e-12 * max(float(np.max(np.abs(z))), 1e-300)
+    if ok.sum() < 2:
+        raise ValueError("X: fewer than two points in front of the camera")
+    out = []
+    for coord, pix in ((X[..., 0], u), (X[..., 1], v)):
+        a = coord[ok] / z[ok]
+        A = np.stack([a, np.ones_like(a)], -1)
+        (f, c), *_ = np.linalg.lstsq(A, pix[ok], rcond=None)
+        out.append((float(f), float(c)))
+    return out[0][0], out[1][0], out[0][1], out[1][1]
+
+
+def rotated_pointmap(
+    X_k: FloatArray, C_k: FloatArray, R_kf: FloatArray, X_f: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """The pointmap of a frame whose camera centre is its keyframe's: the keyframe's points,
+    seen through the frame's rays.
+
+    A pair without parallax gives the frame no depth of its own. With a shared centre and
+    ``X_k = R_kf X_f``, the point on the frame's ray ``r(u)`` is the keyframe's point at the
+    pixel where ``R_kf r(u)`` meets the keyframe's image (:func:`pinhole_of` of ``X_k``,
+    nearest pixel): ``X(u) = R_kfᵀ X_k(π(R_kf r(u)))``, with the keyframe's confidence. A ray
+    that leaves the keyframe's image gets the median distance of ``X_k`` and ``NO_INFO_C``.
+
+    Args:
+        X_k: (H, W, 3) the keyframe's pointmap in its camera; C_k: (H, W) its confidence.
+        R_kf: (3, 3) the frame-to-keyframe rotation.
+        X_f: (H, W, 3) a pointmap of the frame; only its rays ``X_f / ‖X_f‖`` are used.
+
+    Returns:
+        X (H, W, 3) in the frame's camera, C (H, W).
+    """
+    H, W = X_k.shape[:2]
+    fx, fy, cx, cy = pinhole_of(X_k)
+    r = X_f / np.maximum(np.linalg.norm(X_f, axis=-1, keepdims=True), 1e-300)
+    d = r @ R_kf.T  # R_kf r, row-wise
+    front = d[..., 2] > 1e-12
+    dz = np.where(front, d[..., 2], 1.0)
+    u = np.rint(fx * d[..., 0] / dz + cx)
+    v = np.rint(fy * d[..., 1] / dz + cy)
+    inside = front & (u >= 0) & (u <= W - 1) & (v >= 0) & (v <= H - 1)
+    ui = np.where(inside, u, 0).astype(np.int64)
+    vi = np.where(inside, v, 0).astype(np.int64)
+    dist = float(np.median(np.linalg.norm(X_k, axis=-1)))
+    X = np.where(inside[..., None], X_k[vi, ui] @ R_kf, r * dist)
+    C = np.where(inside, C_k[vi, ui], NO_INFO_C)
+    return X, C
 
 
 class ParallaxSteps:
@@ -98,16 +201,15 @@ class ParallaxSteps:
     make_keyframe: Callable[..., int]
     lose_tracking: Callable[[], None]
 
-    def pair_status(self) -> str:
-        """The prior's verdict on its last pair, ``"parallax"`` also for an ``"ok"`` pair whose
-        median triangulation angle is below ``tracking.min_pair_angle_deg``."""
+    def pair_status(self, p: PairPrediction) -> str:
+        """The prior's verdict on its last pair ``p``, ``"parallax"`` also for an ``"ok"`` pair
+        whose median parallax (:func:`parallax_px`) is below ``tracking.min_pair_parallax_px``."""
         status = prior_status(self.prior)
         info = getattr(self.prior, "last_info", None)
         if status == "ok" and isinstance(info, dict) and "angle_deg" in info:
             section = dict(self.cfg.sections.get("tracking", {}))
-            if float(info["angle_deg"]) < float(
-                section.get("min_pair_angle_deg", MIN_PAIR_ANGLE_DEG)
-            ):
+            limit = float(section.get("min_pair_parallax_px", MIN_PAIR_PARALLAX_PX))
+            if parallax_px(float(info["angle_deg"]), np.asarray(p.X_ii, np.float64)) < limit:
                 return "parallax"
         return status
 
@@ -162,14 +264,14 @@ class ParallaxSteps:
         kf_idx = len(self.backend.keyframes) - 1
         with self.stats.timer("prior"):
             p = self.prior.pair(frame, self.backend.keyframes[kf_idx].frame)
-        status = self.pair_status()
+        status = self.pair_status(p)
         if status in ("ok", "same"):
             return KeyframePair(kf_idx, p, False, status, None)
         R_ji = getattr(self.prior, "last_R_ji", None) if status == "parallax" else None
         if kf_idx > self.backend.map_start:  # the keyframe before it, in the same map
             with self.stats.timer("prior"):
                 p_prev = self.prior.pair(frame, self.backend.keyframes[kf_idx - 1].frame)
-            if self.pair_status() == "ok":
+            if self.pair_status(p_prev) == "ok":
                 return KeyframePair(kf_idx - 1, p_prev, True, status, None)
         return KeyframePair(kf_idx, p, False, status, R_ji)
 
@@ -192,7 +294,9 @@ class ParallaxSteps:
             q = np.asarray(res.T_CkCf[3:7], np.float64)
         T_CkCf = np.concatenate([np.zeros(3), q, [1.0]])
         self.T_WC_last = sim3.mul(kf.T_WC, T_CkCf)
-        self.last_tracked = TrackedFrame(frame, self.T_WC_last, pair.p)
+        self.last_tracked = TrackedFrame(
+            frame, self.T_WC_last, pair.p, pair.kf_idx, so3.to_matrix(q)
+        )
         self.record(frame, pair.kf_idx, T_CkCf, FrameStatus.ROTATION)
         return FrameStatus.ROTATION
 
@@ -209,5 +313,15 @@ class ParallaxSteps:
         if last is None or last.frame.index == self.backend.keyframes.last().frame.index:
             return False
         self.poses = [q for q in self.poses if q.index != last.frame.index]
-        self.make_keyframe(last.frame, last.T_WC, last.p)
+        p = last.p
+        if last.rotated_from is not None and last.R_kf is not None:
+            kf = self.backend.keyframes[last.rotated_from]  # no depth of its own: kf's, rotated
+            X, C = rotated_pointmap(
+                kf.state.X_canon.reshape(*kf.shape, 3),
+                fusion.average_confidence(kf.state).reshape(kf.shape),
+                last.R_kf,
+                np.asarray(p.X_ii, np.float64),
+            )
+            p = replace(p, X_ii=X, C_ii=C)
+        self.make_keyframe(last.frame, last.T_WC, p)
         return True
