@@ -75,7 +75,9 @@ def dense_flow(
 
     DIS compares grey levels, so a gain between the images (auto-exposure) biases the flow:
     when the flow measures one (:func:`mslam.priors.photometric.exposure_gain`, beyond
-    ``GAIN_TOL``), the two images are brought to a common exposure and the flow computed again.
+    ``GAIN_TOL``), the two images are brought to a common exposure and the flow computed
+    again, and the flow with the larger share of forward–backward errors below
+    ``GAIN_FB_PX`` is returned (the first one on a tie).
 
     Args:
         rgb_i, rgb_j: (H, W, 3) uint8 images of the same size.
@@ -91,26 +93,29 @@ def dense_flow(
     gi, gj = _grey(rgb_i), _grey(rgb_j)
     if gi.shape != gj.shape:
         raise ValueError(f"rgb_j: size {gj.shape} differs from rgb_i {gi.shape}")
-    for aligned in (False, True):
+    flows = []
+    for _ in range(2):
         out = []
         for a, b, init in ((gi, gj, init_ij), (gj, gi, init_ji)):
             dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
             if init is None:
-                out.append(dis.calc(a, b, None))
+                out.append(dis.calc(a, b, None).astype(np.float64))
             else:
                 flow = np.array(init, dtype=np.float32, order="C")  # DIS refines it in place
                 if flow.shape != (*gi.shape, 2):
                     raise ValueError(f"init: expected {(*gi.shape, 2)}, got {flow.shape}")
-                out.append(dis.calc(a, b, flow))
-        if aligned:
+                out.append(dis.calc(a, b, flow).astype(np.float64))
+        e_fb, _ = forward_backward_error(out[0], out[1])
+        flows.append((float(np.mean(e_fb < photometric.GAIN_FB_PX)), out[0], out[1]))
+        if len(flows) == 2:
             break
-        F_ij = out[0].astype(np.float64)
-        e_fb, _ = forward_backward_error(F_ij, out[1].astype(np.float64))
-        gain = photometric.exposure_gain(gi, gj, F_ij, e_fb)
+        gain = photometric.exposure_gain(gi, gj, out[0], e_fb)
         if abs(np.log(gain)) <= photometric.GAIN_TOL:
             break
         gi, gj = photometric.common_exposure(gi, gj, gain)  # then the flow once more
-    return out[0].astype(np.float64), out[1].astype(np.float64)
+    # The aligned flow replaces the first only when it is the more self-consistent one.
+    _share, F_ij, F_ji = flows[-1] if flows[-1][0] > flows[0][0] else flows[0]
+    return F_ij, F_ji
 
 
 def _grid(H: int, W: int) -> FloatArray:
