@@ -17,7 +17,7 @@ is computed again, and the more self-consistent of the two flows is kept
 Measured on the 7-Scenes kitchen clip at 160x120 (2026-11-26). Pairs four frames apart with
 the gain swinging between 1/2 and 2 over 60 frames (``benchmarks/hard_variants.py``,
 ``exposure``): 14.9 % of the pixels' flow lay more than 0.3 px from the unchanged pair's flow,
-6.7 % after the alignment (the rest: clipped and coarser grey levels). The unchanged clip's
+6.7 % with every pair aligned (the rest: clipped and coarser grey levels). The unchanged clip's
 own pairs measure gains too (view-dependent brightness and the camera's auto-exposure, pairs
 far apart): 42 % of the 313 flows of a run beyond 2 %, 5-10 % beyond
 10 %. Aligning from 2 % on changed 73 of its flows and its trajectory error 2.60 -> 2.79 cm;
