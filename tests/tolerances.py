@@ -169,3 +169,14 @@ ROTATED_POINTMAP_REL = 0.03
 #: measured 2026-11-26 at most 10.3° (2-10° after the relocalisation at frame 40; 23-29° when
 #: the keyframes posed by rotation kept their pairs' noise depths)
 ROTATION_ONLY_ORIENTATION_DEG = 12.0
+
+# --- Photometric alignment of the two-view flow ----------------------------------------------
+#: Measured 2026-11-26 on the synthetic forward path at 160x120 (mslam.priors.photometric):
+#: a flow error (pixels) below which a pixel's flow counts as accurate
+FLOW_ACCURATE_PX = 0.3
+#: gain measured along the true flow against the applied one (relative; worst seen 0.8 %)
+EXPOSURE_GAIN_REL = 0.02
+#: share of accurate pixels a gain of 0.5 or 1.8 may cost (worst seen 0.036; 0.10-0.26 without the alignment)
+FLOW_UNDER_GAIN_SHARE = 0.05
+#: grey levels between one image and its half-exposure copy after the alignment (rounding)
+EXPOSURE_ROUNDING_LEVELS = 2

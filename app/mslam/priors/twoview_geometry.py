@@ -73,6 +73,12 @@ def dense_flow(
 ) -> tuple[FloatArray, FloatArray]:
     """Forward and backward DIS optical flow (preset MEDIUM) between two RGB images.
 
+    DIS compares grey levels, so a gain between the images (auto-exposure) biases the flow:
+    when the flow measures one (:func:`mslam.priors.photometric.exposure_gain`, beyond
+    ``GAIN_TOL``), the two images are brought to a common exposure and the flow computed
+    again, and the flow with the larger share of forward–backward errors below
+    ``GAIN_FB_PX`` is returned (the first one on a tie).
+
     Args:
         rgb_i, rgb_j: (H, W, 3) uint8 images of the same size.
         init_ij, init_ji: optional (H, W, 2) initial flows (DIS refines them instead of
@@ -82,20 +88,34 @@ def dense_flow(
         F_ij: (H, W, 2) float64, pixel ``u`` of i corresponds to ``u + F_ij(u)`` in j;
         F_ji: (H, W, 2) float64, the reverse.
     """
+    from mslam.priors import photometric
+
     gi, gj = _grey(rgb_i), _grey(rgb_j)
     if gi.shape != gj.shape:
         raise ValueError(f"rgb_j: size {gj.shape} differs from rgb_i {gi.shape}")
-    out = []
-    for a, b, init in ((gi, gj, init_ij), (gj, gi, init_ji)):
-        dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
-        if init is None:
-            out.append(dis.calc(a, b, None))
-        else:
-            flow = np.array(init, dtype=np.float32, order="C")  # DIS refines it in place
-            if flow.shape != (*gi.shape, 2):
-                raise ValueError(f"init: expected {(*gi.shape, 2)}, got {flow.shape}")
-            out.append(dis.calc(a, b, flow))
-    return out[0].astype(np.float64), out[1].astype(np.float64)
+    flows = []
+    for _ in range(2):
+        out = []
+        for a, b, init in ((gi, gj, init_ij), (gj, gi, init_ji)):
+            dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
+            if init is None:
+                out.append(dis.calc(a, b, None).astype(np.float64))
+            else:
+                flow = np.array(init, dtype=np.float32, order="C")  # DIS refines it in place
+                if flow.shape != (*gi.shape, 2):
+                    raise ValueError(f"init: expected {(*gi.shape, 2)}, got {flow.shape}")
+                out.append(dis.calc(a, b, flow).astype(np.float64))
+        e_fb, _ = forward_backward_error(out[0], out[1])
+        flows.append((float(np.mean(e_fb < photometric.GAIN_FB_PX)), out[0], out[1]))
+        if len(flows) == 2:
+            break
+        gain = photometric.exposure_gain(gi, gj, out[0], e_fb)
+        if abs(np.log(gain)) <= photometric.GAIN_TOL:
+            break
+        gi, gj = photometric.common_exposure(gi, gj, gain)  # then the flow once more
+    # The aligned flow replaces the first only when it is the more self-consistent one.
+    _share, F_ij, F_ji = flows[-1] if flows[-1][0] > flows[0][0] else flows[0]
+    return F_ij, F_ji
 
 
 def _grid(H: int, W: int) -> FloatArray:
