@@ -232,8 +232,8 @@ plt.show()
 
 # %% [markdown]
 # On the full 150-frame clip at 160x120 (measured 2026-11-26, benchmarks/RESULTS.md "Monocular
-# RGB") the RGB-only map scores a chamfer of 16.6 cm with 0.7 % of its points far (10.4 cm once
-# registered by ICP), the RGB-D map 8.8 cm — and 1.5 cm once registered: the RGB-D map itself
+# RGB on video nobody tuned to") the RGB-only map scores a chamfer of 15.1 cm with 0.3 % of its
+# points far (11.4 cm once registered by ICP), the RGB-D map 8.8 cm — and 1.5 cm once registered: the RGB-D map itself
 # is tight, its trajectory alignment is not. How much of that is the alignment alone?
 # docs/evaluation.md moves the *true* cloud by the Sim(3) fitted to a noisy copy of the true
 # path: with a drift-shaped trajectory error of 1.6 cm (this clip's RGB-D ATE) a perfect map
