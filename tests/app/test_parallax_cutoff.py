@@ -12,6 +12,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from tolerances import FOCAL_FROM_POINTMAP_RTOL, ROTATED_POINTMAP_REL
 
 from mslam.config import load_config
 from mslam.priors.base import NO_INFO_C, PairPrediction
@@ -24,7 +25,6 @@ from mslam.system.parallax import (
 )
 from mslam_ref import so3
 from mslam_ref.pointmap import backproject, intrinsics_from_fov
-from tests.tolerances import FOCAL_FROM_POINTMAP_RTOL, ROTATED_POINTMAP_REL
 
 SIZES = [(160, 120), (640, 480)]
 

@@ -12,13 +12,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from tolerances import ROTATION_ONLY_ORIENTATION_DEG
 
 from mslam.config import load_config
 from mslam.kernels import load_kernels
 from mslam.system import open_source, run_slam
 from mslam.system.state import FrameStatus
 from mslam_ref import so3
-from tests.tolerances import ROTATION_ONLY_ORIENTATION_DEG
 
 ROTATION = "synthetic:rotation:60:128x96"
 MIN_POSED = 0.9  # share of frames with a pose
