@@ -16,11 +16,11 @@ from tolerances import FOCAL_FROM_POINTMAP_RTOL, ROTATED_POINTMAP_REL
 
 from mslam.config import load_config
 from mslam.priors.base import NO_INFO_C, PairPrediction
+from mslam.system.map_scale import pinhole_fit
 from mslam.system.parallax import (
     MIN_PAIR_PARALLAX_PX,
     ParallaxSteps,
     parallax_px,
-    pinhole_of,
     rotated_pointmap,
 )
 from mslam_ref import so3
@@ -43,10 +43,10 @@ def _status(angle_deg: float, p: PairPrediction) -> str:
 
 
 @pytest.mark.parametrize(("W", "H"), SIZES)
-def test_pinhole_of_a_backprojected_pointmap_is_its_intrinsics(W: int, H: int) -> None:
+def test_pinhole_fit_of_a_backprojected_pointmap_is_its_intrinsics(W: int, H: int) -> None:
     K = intrinsics_from_fov(W, H, 60.0)
     depth = 1.0 + np.random.default_rng(0).random((H, W))
-    fx, fy, cx, cy = pinhole_of(backproject(depth, K))
+    fx, fy, cx, cy = pinhole_fit(backproject(depth, K))
     np.testing.assert_allclose(
         [fx, fy, cx, cy], [K[0, 0], K[1, 1], K[0, 2], K[1, 2]], rtol=FOCAL_FROM_POINTMAP_RTOL
     )

@@ -49,8 +49,8 @@ own camera, normalised) when it has one, else a fronto-parallel plane at distanc
 (``needs_parallax = True``): it waits for the first pair with enough parallax (docs/priors.md).
 
 ``last_status`` is ``"ok"``, ``"same"`` (i is j), ``"few_inliers"`` or ``"parallax"``;
-``last_info`` has the inlier count, the homography parallax (pixels) and the median
-triangulation angle (degrees) of the last pair; ``last_R_ji`` (3, 3) the rotation of a pair
+``last_info`` has the inlier count, the homography parallax (pixels), the median
+triangulation angle (degrees) and the mean focal length of K (pixels) of the last pair; ``last_R_ji`` (3, 3) the rotation of a pair
 flagged ``"parallax"`` (well determined without parallax; the frontend poses such frames by
 rotation only), else None.
 
@@ -269,6 +269,7 @@ class TwoViewPrior:
         z_ref = [self._remembered_depth(f, F_ij.shape[:2]) for f in (frame_i, frame_j)]
         R, t, n_inl, parallax, angle, ambiguous = self._pose_of(key, F_ij, F_ji, K, z_ref)
         self.last_info = {"inliers": n_inl, "parallax_px": parallax, "angle_deg": angle,
+                          "focal_px": 0.5 * float(K[0, 0] + K[1, 1]),
                           "guided": float(guided), "ambiguous": float(ambiguous)}  # fmt: skip
         if n_inl < cfg.min_inliers:
             self.last_status = "few_inliers"

@@ -25,6 +25,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from mslam.priors import photometric
 from mslam_ref.conventions import FloatArray
 from mslam_ref.pointmap import intrinsics_from_fov
 
@@ -88,34 +89,39 @@ def dense_flow(
         F_ij: (H, W, 2) float64, pixel ``u`` of i corresponds to ``u + F_ij(u)`` in j;
         F_ji: (H, W, 2) float64, the reverse.
     """
-    from mslam.priors import photometric
-
     gi, gj = _grey(rgb_i), _grey(rgb_j)
     if gi.shape != gj.shape:
         raise ValueError(f"rgb_j: size {gj.shape} differs from rgb_i {gi.shape}")
-    flows = []
-    for _ in range(2):
-        out = []
-        for a, b, init in ((gi, gj, init_ij), (gj, gi, init_ji)):
-            dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
-            if init is None:
-                out.append(dis.calc(a, b, None).astype(np.float64))
-            else:
-                flow = np.array(init, dtype=np.float32, order="C")  # DIS refines it in place
-                if flow.shape != (*gi.shape, 2):
-                    raise ValueError(f"init: expected {(*gi.shape, 2)}, got {flow.shape}")
-                out.append(dis.calc(a, b, flow).astype(np.float64))
-        e_fb, _ = forward_backward_error(out[0], out[1])
-        flows.append((float(np.mean(e_fb < photometric.GAIN_FB_PX)), out[0], out[1]))
-        if len(flows) == 2:
-            break
-        gain = photometric.exposure_gain(gi, gj, out[0], e_fb)
-        if abs(np.log(gain)) <= photometric.GAIN_TOL:
-            break
-        gi, gj = photometric.common_exposure(gi, gj, gain)  # then the flow once more
+    F_ij, F_ji = _dis_both_ways(gi, gj, init_ij, init_ji)
+    e_fb, _ = forward_backward_error(F_ij, F_ji)
+    gain = photometric.exposure_gain(gi, gj, F_ij, e_fb)
+    if abs(np.log(gain)) <= photometric.GAIN_TOL:
+        return F_ij, F_ji
+    ai, aj = photometric.common_exposure(gi, gj, gain)
+    G_ij, G_ji = _dis_both_ways(ai, aj, init_ij, init_ji)
+    e_aligned, _ = forward_backward_error(G_ij, G_ji)
     # The aligned flow replaces the first only when it is the more self-consistent one.
-    _share, F_ij, F_ji = flows[-1] if flows[-1][0] > flows[0][0] else flows[0]
+    if np.mean(e_aligned < photometric.GAIN_FB_PX) > np.mean(e_fb < photometric.GAIN_FB_PX):
+        return G_ij, G_ji
     return F_ij, F_ji
+
+
+def _dis_both_ways(
+    gi: np.ndarray, gj: np.ndarray, init_ij: FloatArray | None, init_ji: FloatArray | None
+) -> tuple[FloatArray, FloatArray]:
+    """DIS flow (preset MEDIUM) from grey ``gi`` to ``gj`` and back, each from its optional
+    initial flow; (H, W, 2) float64 each."""
+    out = []
+    for a, b, init in ((gi, gj, init_ij), (gj, gi, init_ji)):
+        dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
+        if init is None:
+            out.append(dis.calc(a, b, None).astype(np.float64))
+        else:
+            flow = np.array(init, dtype=np.float32, order="C")  # DIS refines it in place
+            if flow.shape != (*gi.shape, 2):
+                raise ValueError(f"init: expected {(*gi.shape, 2)}, got {flow.shape}")
+            out.append(dis.calc(a, b, flow).astype(np.float64))
+    return out[0], out[1]
 
 
 def _grid(H: int, W: int) -> FloatArray:

@@ -33,12 +33,20 @@ from mslam_ref.conventions import FloatArray
 __all__ = ["keyframe_scale_disagreement", "pinhole_fit", "scale_corrections"]
 
 
-def pinhole_fit(X: FloatArray, valid: np.ndarray) -> FloatArray:
+def pinhole_fit(X: FloatArray, valid: np.ndarray | None = None) -> FloatArray:
     """``(f_x, f_y, c_x, c_y)`` of the pinhole that projects pointmap ``X`` (H, W, 3) onto its
-    own pixel grid, fitted by least squares on the ``valid`` (H, W) pixels with ``z > 0``."""
+    own pixel grid, fitted by least squares on the ``valid`` (H, W) pixels (default: all) with
+    ``z > 0``. Exact for a pointmap back-projected through a pinhole (the two-view prior's),
+    the closest pinhole otherwise.
+
+    Raises:
+        ValueError: fewer than two such pixels.
+    """
     H, W = X.shape[:2]
     v, u = np.mgrid[:H, :W]
-    ok = valid & (X[..., 2] > 0)
+    ok = X[..., 2] > 0 if valid is None else valid & (X[..., 2] > 0)
+    if ok.sum() < 2:
+        raise ValueError("X: fewer than two points in front of the camera")
     z = X[..., 2][ok]
     out = []
     for coord, pix in ((X[..., 0][ok] / z, u[ok]), (X[..., 1][ok] / z, v[ok])):

@@ -33,7 +33,7 @@ pairs without parallax apart:
   loss, and the frames after it are 2-10° off, as before the loss).
 
 Public names, in reading order:
-    prior_status, parallax_px, pinhole_of, rotated_pointmap, KeyframePair, TrackedFrame,
+    prior_status, parallax_px, rotated_pointmap, KeyframePair, TrackedFrame,
     ParallaxSteps
 """
 
@@ -48,6 +48,7 @@ from mslam.config import SlamConfig
 from mslam.datasets.frame import Frame
 from mslam.priors.base import NO_INFO_C, PairPrediction, Prior
 from mslam.system.global_opt import Backend
+from mslam.system.map_scale import pinhole_fit
 from mslam.system.state import FramePose, FrameStatus, Mode, RunStats
 from mslam.system.tracker import Tracker
 from mslam_ref import fusion, sim3, so3
@@ -58,7 +59,6 @@ __all__ = [
     "ParallaxSteps",
     "TrackedFrame",
     "parallax_px",
-    "pinhole_of",
     "prior_status",
     "rotated_pointmap",
 ]
@@ -104,43 +104,18 @@ class TrackedFrame:
     R_kf: FloatArray | None = None
 
 
-def parallax_px(angle_deg: float, X: FloatArray) -> float:
+def parallax_px(angle_deg: float, X: FloatArray, focal_px: float | None = None) -> float:
     """A triangulation angle as pixels of parallax: ``f · θ`` (θ in radians), with ``f`` the
-    mean focal length of the pinhole of the pair's pointmap ``X`` (H, W, 3) (:func:`pinhole_of`).
+    focal length the prior reports (``focal_px``), else the mean focal length of the pinhole
+    fitted to the pair's pointmap ``X`` (H, W, 3) (:func:`mslam.system.map_scale.pinhole_fit`).
 
     The same angle is a fraction of a pixel in a small image and several pixels in a large
     one; optical flow resolves a fixed number of pixels at any size.
     """
-    fx, fy, _, _ = pinhole_of(X)
-    return 0.5 * (abs(fx) + abs(fy)) * float(np.radians(angle_deg))
-
-
-def pinhole_of(X: FloatArray) -> tuple[float, float, float, float]:
-    """``fx, fy, cx, cy`` of the pinhole that best explains a pointmap's rays.
-
-    Least squares on ``u = fx · x/z + cx`` and ``v = fy · y/z + cy`` over the pixels with
-    ``z > 0``. Exact for a pointmap back-projected through a pinhole (the two-view prior's),
-    the closest pinhole otherwise.
-
-    Args:
-        X: (H, W, 3) points in the camera.
-
-    Returns:
-        the four intrinsics in pixels.
-    """
-    H, W = X.shape[:2]
-    v, u = np.mgrid[0:H, 0:W].astype(np.float64)
-    z = X[..., 2]
-    ok = z > 1e-12 * max(float(np.max(np.abs(z))), 1e-300)
-    if ok.sum() < 2:
-        raise ValueError("X: fewer than two points in front of the camera")
-    out = []
-    for coord, pix in ((X[..., 0], u), (X[..., 1], v)):
-        a = coord[ok] / z[ok]
-        A = np.stack([a, np.ones_like(a)], -1)
-        (f, c), *_ = np.linalg.lstsq(A, pix[ok], rcond=None)
-        out.append((float(f), float(c)))
-    return out[0][0], out[1][0], out[0][1], out[1][1]
+    if focal_px is None:
+        fx, fy, _, _ = pinhole_fit(X)
+        focal_px = 0.5 * (abs(fx) + abs(fy))
+    return float(focal_px) * float(np.radians(angle_deg))
 
 
 def rotated_pointmap(
@@ -151,8 +126,8 @@ def rotated_pointmap(
 
     A pair without parallax gives the frame no depth of its own. With a shared centre and
     ``X_k = R_kf X_f``, the point on the frame's ray ``r(u)`` is the keyframe's point at the
-    pixel where ``R_kf r(u)`` meets the keyframe's image (:func:`pinhole_of` of ``X_k``,
-    nearest pixel): ``X(u) = R_kfᵀ X_k(π(R_kf r(u)))``, with the keyframe's confidence. A ray
+    pixel where ``R_kf r(u)`` meets the keyframe's image (nearest pixel, through
+    :func:`mslam.system.map_scale.pinhole_fit` of ``X_k``): ``X(u) = R_kfᵀ X_k(π(R_kf r(u)))``, with the keyframe's confidence. A ray
     that leaves the keyframe's image gets the median distance of ``X_k`` and ``NO_INFO_C``.
 
     Args:
@@ -164,7 +139,7 @@ def rotated_pointmap(
         X (H, W, 3) in the frame's camera, C (H, W).
     """
     H, W = X_k.shape[:2]
-    fx, fy, cx, cy = pinhole_of(X_k)
+    fx, fy, cx, cy = pinhole_fit(X_k)
     r = X_f / np.maximum(np.linalg.norm(X_f, axis=-1, keepdims=True), 1e-300)
     d = r @ R_kf.T  # R_kf r, row-wise
     front = d[..., 2] > 1e-12
@@ -209,7 +184,10 @@ class ParallaxSteps:
         if status == "ok" and isinstance(info, dict) and "angle_deg" in info:
             section = dict(self.cfg.sections.get("tracking", {}))
             limit = float(section.get("min_pair_parallax_px", MIN_PAIR_PARALLAX_PX))
-            if parallax_px(float(info["angle_deg"]), np.asarray(p.X_ii, np.float64)) < limit:
+            focal = info.get("focal_px")
+            angle = float(info["angle_deg"])
+            X = np.asarray(p.X_ii, np.float64)
+            if parallax_px(angle, X, None if focal is None else float(focal)) < limit:
                 return "parallax"
         return status
 
