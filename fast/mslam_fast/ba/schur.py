@@ -31,7 +31,7 @@ from mslam_fast._matching_host import _kept, _zeros
 from mslam_fast._recycle import output
 from mslam_fast._runtime import coerce, ensure_init
 from mslam_fast._types import f64, nd, template
-from mslam_ref.ba.schur import BlockStructure
+from mslam_ref.ba.schur import BlockStructure, pin_fixed
 
 __all__ = [
     "back_substitute",
@@ -293,9 +293,7 @@ def scaled_normal_blocks(
     if O:
         _U_k(Jc, w, r, s.cam_ptr, s.cam_obs, U, bc, d, k)
         _V_k(Jp, w, r, s.pt_ptr, s.pt_obs, V, bl, k)
-    cf, pf = np.asarray(cam_free, bool), np.asarray(point_free, bool)
-    U[~cf], bc[~cf] = np.eye(d), 0.0
-    V[~pf], bl[~pf] = np.eye(3), 0.0
+    pin_fixed(U, V, bc, bl, np.asarray(cam_free, bool), np.asarray(point_free, bool))
     Us, Vs, bcs, bls, Dc, Dp = _z(M, d, d), _z(P, 3, 3), _z(M, d), _z(P, 3), _z(M, d), _z(P, 3)
     if M:
         _jac_diag_k(U, bc, Dc, Us, bcs, d)

@@ -197,10 +197,7 @@ def _linear_system(problem: Any, kernels: Any, structure: Any, cams, points, sca
         )
         return F, (Us, Vs, Ws, bcs, bls), (Dc, Dp)
     U, V, W, bc, bl = kernels.schur.normal_blocks(*args, structure)
-    U[~problem.cam_free] = np.eye(problem.cam_dof)
-    bc[~problem.cam_free] = 0.0
-    V[~problem.point_free] = np.eye(3)
-    bl[~problem.point_free] = 0.0
+    _schur.pin_fixed(U, V, bc, bl, problem.cam_free, problem.point_free)
     return F, (U, V, W, bc, bl), None
 
 

@@ -33,7 +33,7 @@ once per ``optimize()`` call. Unknowns that are fixed or unobserved get identity
 zero right-hand side (their step is exactly 0), which keeps every block shape static.
 
 Public names, in reading order:
-    BlockStructure, build_structure, normal_blocks, jacobi_scale, scaled_normal_blocks,
+    BlockStructure, build_structure, normal_blocks, jacobi_scale, pin_fixed, scaled_normal_blocks,
     schur_complement,
     dense_reduced, solve_reduced, back_substitute
 
@@ -63,6 +63,7 @@ __all__ = [
     "dense_reduced",
     "jacobi_scale",
     "normal_blocks",
+    "pin_fixed",
     "scaled_normal_blocks",
     "schur_complement",
     "solve_reduced",
@@ -123,11 +124,8 @@ def build_structure(
     observations of one pair are handled exactly).
 
     Args:
-        obs_cam: (O,) int.
-        obs_pt: (O,) int.
-        n_cams: M.
-        n_points: P.
-        cam_dof: d.
+        obs_cam, obs_pt: (O,) int.
+        n_cams, n_points, cam_dof: M, P, d.
 
     Returns:
         The :class:`BlockStructure`.
@@ -188,9 +186,7 @@ def normal_blocks(
         bc_i = -sum J_c^T w r,  bl_j = -sum J_p^T w r
 
     Args:
-        r: (O, k) residuals.
-        J_cam: (O, k, d).
-        J_pt: (O, k, 3).
+        r: (O, k) residuals; J_cam: (O, k, d); J_pt: (O, k, 3).
         weight: (O,) effective information ``omega rho'(s)``.
         structure: the block structure.
 
@@ -238,6 +234,17 @@ def jacobi_scale(
     return Us, Vs, Ws, bc * Dc, bl * Dp, Dc, Dp
 
 
+def pin_fixed(
+    U: FloatArray, V: FloatArray, bc: FloatArray, bl: FloatArray,
+    cam_free: BoolArray, point_free: BoolArray,
+) -> None:  # fmt: skip
+    """Give every unknown that is not free an identity block and a zero right-hand side, in
+    place (its step is then exactly 0): U (M, d, d) and bc (M, d) where ``cam_free`` (M,) is
+    False, V (P, 3, 3) and bl (P, 3) where ``point_free`` (P,) is False."""
+    U[~cam_free], bc[~cam_free] = np.eye(U.shape[-1]), 0.0
+    V[~point_free], bl[~point_free] = np.eye(3), 0.0
+
+
 def scaled_normal_blocks(
     r: FloatArray,
     J_cam: FloatArray,
@@ -247,8 +254,8 @@ def scaled_normal_blocks(
     point_free: BoolArray,
     structure: BlockStructure,
 ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
-    """:func:`normal_blocks`, the blocks of unknowns that are not free set to identity with a
-    zero right-hand side, then :func:`jacobi_scale`: the LM driver's scaled system in one call.
+    """:func:`normal_blocks`, :func:`pin_fixed`, then :func:`jacobi_scale`: the LM driver's
+    scaled system in one call.
 
     Args:
         r, J_cam, J_pt, weight, structure: as :func:`normal_blocks`.
@@ -258,8 +265,7 @@ def scaled_normal_blocks(
         As :func:`jacobi_scale`: scaled U, V, W, bc, bl, and Dc (M, d), Dp (P, 3).
     """
     U, V, W, bc, bl = normal_blocks(r, J_cam, J_pt, weight, structure)
-    U[~cam_free], bc[~cam_free] = np.eye(structure.cam_dof), 0.0
-    V[~point_free], bl[~point_free] = np.eye(3), 0.0
+    pin_fixed(U, V, bc, bl, cam_free, point_free)
     return jacobi_scale(U, V, W, bc, bl, structure)
 
 
@@ -381,9 +387,7 @@ def back_substitute(
         dl_j = V_j^-1 (bl_j - sum_{e in j} W_e^T dc_{i(e)})
 
     Args:
-        Vinv: (P, 3, 3) inverse damped point blocks.
-        W: (O, d, 3).
-        bl: (P, 3).
+        Vinv: (P, 3, 3) inverse damped point blocks; W: (O, d, 3); bl: (P, 3).
         dc: (M, d) camera steps.
         structure: the block structure.
 
