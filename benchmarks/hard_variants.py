@@ -35,7 +35,6 @@ and ``python benchmarks/hard_variants.py --table RUN ...`` for one Markdown row 
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -47,6 +46,7 @@ from mslam.datasets.readers import matrix_to_T_WC, natsorted, read_pose_matrix
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _data import seven_scenes
+from video_variants import read_summary
 
 #: Frame period of the written timestamps (s).
 DT = 1.0 / 30.0
@@ -186,11 +186,10 @@ def write_variant(clip: Path, out: Path, name: str) -> Path:
 
 def table_row(run: Path) -> str:
     """One Markdown row of a run's ``summary.json``."""
-    s = json.loads((run / "summary.json").read_text())
-    ate = s.get("ate_rmse")
+    s = read_summary(run)
     return (
-        f"| {run.name} | {s['frames']} | {100 * s['frames_posed_fraction']:.1f} | "
-        f"{'-' if ate is None else f'{100 * ate:.2f}'} | {s['keyframes']} | "
+        f"| {run.name} | {s['frames']} | {s['posed_pct']:.1f} | {s['ate_cm']} | "
+        f"{s['keyframes']} | "
         f"{s['frames_per_second']:.2f} | {s['plausible']} | {len(s['maps'])} | "
         f"{'; '.join(s['warnings']) or '-'} |"
     )

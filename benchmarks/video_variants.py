@@ -89,16 +89,24 @@ def write_variant(clip: Path, out: Path, name: str) -> Path:
     return dst
 
 
-def table_row(run: Path) -> str:
-    """One line of a run's ``summary.json``."""
+def read_summary(run: Path) -> dict[str, object]:
+    """A run's ``summary.json`` with two figures added for tables: ``posed_pct`` (frames
+    posed, %) and ``ate_cm`` (the ATE RMSE in cm as text, ``-`` without ground truth)."""
     import json
 
     s = json.loads((run / "summary.json").read_text())
     ate = s.get("ate_rmse")
+    posed_pct = 100 * s["frames_posed_fraction"]
+    return {**s, "posed_pct": posed_pct, "ate_cm": "-" if ate is None else f"{100 * ate:.2f}"}
+
+
+def table_row(run: Path) -> str:
+    """One line of a run's ``summary.json``."""
+    s = read_summary(run)
     stages = " ".join(f"{k}={v:.0f}" for k, v in s["stage_seconds"].items())
     return (
-        f"{run.name}: posed {100 * s['frames_posed_fraction']:.1f} %, ATE "
-        f"{'-' if ate is None else f'{100 * ate:.2f} cm'}, {s['keyframes']} keyframes, "
+        f"{run.name}: posed {s['posed_pct']:.1f} %, ATE {s['ate_cm']} cm, "
+        f"{s['keyframes']} keyframes, "
         f"{s['loop_closure_edges']} loop edges, {s['seconds']:.0f} s ({stages}), "
         f"plausible {s['plausible']}, warnings {s['warnings']}"
     )
