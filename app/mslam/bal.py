@@ -58,7 +58,7 @@ def _numbers(lines: list[str], start: int, count: int, path: Path, what: str) ->
     extra = len(vals) > count
     rest = next((k for k in range(i, len(lines)) if lines[k].strip()), None)
     if extra or rest is not None:
-        line = i if extra else rest + 1
+        line = i if extra or rest is None else rest + 1
         raise ValueError(
             f"{path}:{line}: more values than the header's counts allow ({count} {what}); "
             "the header does not match the file or there is trailing data"

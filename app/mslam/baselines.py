@@ -95,7 +95,7 @@ def rgbd_odometry(
         if prev is not None:
             ok, Rt = od.compute(prev, cur)
             if ok and np.all(np.isfinite(Rt)):
-                T = sim3.mul(T, sim3.from_matrix(np.linalg.inv(Rt)))
+                T = sim3.mul(T, sim3.from_matrix(np.asarray(np.linalg.inv(Rt), np.float64)))
             else:
                 failures += 1
         prev = cur

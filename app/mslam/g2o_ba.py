@@ -154,7 +154,13 @@ def write_g2o_ba(problem: PinholeProblem, ids: dict, path: str | Path) -> None:
 def format_g2o_ba(problem: PinholeProblem, ids: dict) -> str:
     """``problem`` in the format of :func:`read_g2o_ba` (one camera record per distinct
     intrinsics row; fx is written as f, so fx must equal fy); ``ids`` as it returns them."""
-    out, cam_of = [], {}
+    out: list[str] = []
+    cam_of: dict[tuple[float, ...], int] = {}
+    pose_fixed, point_fixed = problem.pose_fixed, problem.point_fixed
+    information, is_stereo = problem.information, problem.is_stereo
+    # PinholeProblem.__post_init__ fills every optional array
+    assert pose_fixed is not None and point_fixed is not None
+    assert information is not None and is_stereo is not None
     for row in map(tuple, problem.intrinsics.tolist()):
         if row not in cam_of:
             cam_of[row] = len(cam_of)
@@ -167,17 +173,17 @@ def format_g2o_ba(problem: PinholeProblem, ids: dict) -> str:
     for v, X in zip(ids["points"], problem.points.tolist()):
         out.append(f"VERTEX_SBAPOINTXYZ {v} " + " ".join(f"{x:.17g}" for x in X))
     for i, v in enumerate(ids["poses"]):
-        if problem.pose_fixed[i]:
+        if pose_fixed[i]:
             out.append(f"FIX {v}")
     for j, v in enumerate(ids["points"]):
-        if problem.point_fixed[j]:
+        if point_fixed[j]:
             out.append(f"FIX {v}")
     for e in range(len(problem.obs_cam)):
         c, p = int(problem.obs_cam[e]), int(problem.obs_pt[e])
         cid = cam_of[tuple(problem.intrinsics[c].tolist())]
-        om = f"{problem.information[e]:.17g}"
+        om = f"{information[e]:.17g}"
         head = f"{ids['points'][p]} {ids['poses'][c]} {cid}"
-        if problem.is_stereo[e]:
+        if is_stereo[e]:
             m = " ".join(f"{x:.17g}" for x in problem.meas[e])
             out.append(f"{_STEREO} {head} {m} {om} 0 0 {om} 0 {om}")
         else:

@@ -195,7 +195,9 @@ def _truth(args: argparse.Namespace, est_stamps: Any) -> Any:
         raise UserError(f"{args.truth_rgbd}: {exc}") from None
 
 
-def _map(args: argparse.Namespace, trajs: tuple) -> tuple[dict[str, Any], dict[str, Any]]:
+def _map(
+    args: argparse.Namespace, trajs: tuple[Any, Any, Any, Any]
+) -> tuple[dict[str, Any], dict[str, Any]]:
     """``--map``: read the map and the truth, align the map like the trajectory, score it."""
     from mslam import formats as io
     from mslam.map_metrics import evaluate_map

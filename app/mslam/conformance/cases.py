@@ -261,8 +261,8 @@ def _backend_cases() -> Iterator[Case]:
     for mode, extra in (("ray_dist", {}), ("calibrated", {"K_cam": Kc})):
         ins = dict(G, **extra)
         if extra:  # store the pointmaps constrained to their rays, as the kernel sees them
-            ins["X"] = backend.pose_graph(*(ins[k] for k in ("X", "C", "ii", "jj", "idx",
-                                                             "valid", "Q")), Kc).X  # fmt: skip
+            ins["X"] = backend.pose_graph(ins["X"], ins["C"], ins["ii"], ins["jj"], ins["idx"],
+                                          ins["valid"], ins["Q"], Kc).X  # fmt: skip
         cfg = dataclasses.asdict(backend.BackendConfig())
         yield Case("backend.linearize", mode, f"4 directed blocks, {mode}", ins, {"cfg": cfg})
         yield Case("backend.solve", mode, f"3 Gauss-Newton iterations, {mode}, first pinned",
@@ -276,11 +276,11 @@ def _backend_cases() -> Iterator[Case]:
 
 
 def _ba_problems() -> Iterator[tuple[str, Any]]:
-    p, _ = synthetic.make_pinhole_problem(n_cams=4, n_points=20, stereo_fraction=0.4, seed=11,
-                                          kernel=RobustKernel("huber", 2.0))  # fmt: skip
-    yield "pinhole", p
-    p, _ = synthetic.make_bal_problem(n_cams=4, n_points=20, seed=12)
-    yield "bal", p
+    pin, _ = synthetic.make_pinhole_problem(n_cams=4, n_points=20, stereo_fraction=0.4, seed=11,
+                                            kernel=RobustKernel("huber", 2.0))  # fmt: skip
+    yield "pinhole", pin
+    bal, _ = synthetic.make_bal_problem(n_cams=4, n_points=20, seed=12)
+    yield "bal", bal
 
 
 def _ba_cases() -> Iterator[Case]:
@@ -318,6 +318,8 @@ def _schur_cases(kind: str, p: Any, M: int, P: int, lin: tuple[np.ndarray, ...])
                dict(sins, U=U, V=V, W=Wb, bc=bc, bl=bl), dict(prm, lam=float(lam)))  # fmt: skip
     S, rhs, Vinv = schur.schur_complement(U, V, Wb, bc, bl, lam, st)
     dc = schur.solve_reduced(S, rhs, st)
+    if dc is None:
+        raise RuntimeError(f"{kind} ring: the reduced camera system is not positive definite")
     yield Case("ba.schur.back_substitute", kind, f"{kind} ring, dc from the reduced system",
                dict(sins, Vinv=Vinv, W=Wb, bl=bl, dc=dc), prm)  # fmt: skip
 

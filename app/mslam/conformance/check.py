@@ -89,7 +89,8 @@ _NEEDS = {"allclose": ("rtol", "atol"), "scaled": ("rtol", "atol"), "exact": (),
 
 def _valid_tolerance(o: dict[str, Any]) -> bool:
     """``o`` has a known measure and, per precision, the numbers that measure reads."""
-    need = _NEEDS.get(o.get("measure"))
+    measure = o.get("measure")
+    need = _NEEDS.get(measure) if isinstance(measure, str) else None
     return need is not None and all(
         isinstance(o.get(fp), dict) and all(isinstance(o[fp].get(k), int | float) for k in need)
         for fp in PRECISIONS

@@ -106,7 +106,9 @@ def write_golden_set(folder: str | Path) -> dict[str, Any]:
         kernel = KERNELS[case.kernel]
         ins = {n: _canonical(a) for n, a in case.inputs.items()}  # what the file will hold
         outs = reference_outputs(kernel, dataclasses.replace(case, inputs=ins))
-        arrays = {f"in.{n}": a for n, a in ins.items()} | {f"out.{n}": a for n, a in outs.items()}
+        # Any: numpy's stub of savez types **kwds so that a dict of arrays also meets allow_pickle
+        arrays: dict[str, Any] = {f"in.{n}": a for n, a in ins.items()}
+        arrays |= {f"out.{n}": a for n, a in outs.items()}
         rel = f"{case.kernel}/{case.name}.npz"
         (folder / case.kernel).mkdir(exist_ok=True)
         np.savez(folder / rel, **arrays)  # stored (uncompressed) entries

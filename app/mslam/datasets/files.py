@@ -61,7 +61,7 @@ class FileSequence(FrameSequence):
         self,
         name: str,
         rgb_paths: Sequence[Path],
-        timestamps: Sequence[float],
+        timestamps: Sequence[float] | np.ndarray,
         depth_paths: Sequence[Path] | None = None,
         T_WC: Sequence[FloatArray | None] | None = None,
         calib: Calibration | None = None,
@@ -79,14 +79,15 @@ class FileSequence(FrameSequence):
         if len(self.timestamps) != len(self.rgb_paths):
             raise ValueError(f"{name}: {len(self.rgb_paths)} images but {len(timestamps)} stamps")
         self.has_depth = self.depth_paths is not None
-        self._gt = list(T_WC) if T_WC is not None else [None] * len(self.rgb_paths)
-        self.T_WC = (
-            np.stack(self._gt) if self._gt and all(t is not None for t in self._gt) else None
+        self._gt: list[FloatArray | None] = (
+            list(T_WC) if T_WC is not None else [None] * len(self.rgb_paths)
         )
+        known = [t for t in self._gt if t is not None]
+        self.T_WC = np.stack(known) if known and len(known) == len(self._gt) else None
         self.calib = calib
         self.depth_scale = float(calib.depth_scale if calib and calib.depth_scale else depth_scale)
         self.size = None if size is None else (int(size[0]), int(size[1]))
-        self._maps = None
+        self._maps: tuple[np.ndarray, np.ndarray] | None = None
         self.K = None
         self.distortion = None
         if calib is not None:
@@ -117,11 +118,13 @@ class FileSequence(FrameSequence):
             mx, my = self._maps
             rgb = cv2.remap(rgb, mx, my, cv2.INTER_LINEAR)
             if depth is not None:
-                depth = cv2.remap(depth, mx, my, cv2.INTER_NEAREST)
+                depth = np.asarray(cv2.remap(depth, mx, my, cv2.INTER_NEAREST), np.float64)
         if self.size is not None and rgb.shape[:2] != (self.size[1], self.size[0]):
             rgb = cv2.resize(rgb, self.size, interpolation=cv2.INTER_AREA)
             if depth is not None:
-                depth = cv2.resize(depth, self.size, interpolation=cv2.INTER_NEAREST)
+                depth = np.asarray(
+                    cv2.resize(depth, self.size, interpolation=cv2.INTER_NEAREST), np.float64
+                )
         return Frame(i, float(self.timestamps[i]), np.ascontiguousarray(rgb), depth, self._gt[i])
 
     def _load(self, i: int) -> Frame:

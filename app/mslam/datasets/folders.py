@@ -31,6 +31,7 @@ from mslam.datasets.readers import (
     Calibration,
     matrix_to_T_WC,
     natsorted,
+    read_calibration,
     read_pose_matrix,
     read_text_rows,
 )
@@ -46,7 +47,7 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 
 def _seven_scenes_calib(folder: Path, shape: tuple[int, int]) -> Calibration:
     if (folder / "calib.yaml").is_file():
-        return apply_calibration(folder / "calib.yaml")
+        return read_calibration(folder / "calib.yaml")
     H, W = shape
     K = np.array([[585.0, 0, 320.0], [0, 585.0, 240.0], [0, 0, 1]])
     path = folder / "camera-intrinsics.txt"
@@ -196,7 +197,7 @@ class VideoSequence(FrameSequence):
         self.distortion = self._files.distortion
         self.has_depth = False
         self.T_WC = None
-        self._cap = None
+        self._cap: cv2.VideoCapture | None = None
         self._next = 0
 
     def _load(self, i: int) -> Frame:

@@ -113,7 +113,8 @@ def read_calibration(path: str | Path) -> Calibration:
         raise ValueError(f"{path}: width, height, fx, fy must be positive and finite")
     if depth_scale is not None and depth_scale <= 0:
         raise ValueError(f"{path}: depth_scale must be positive, got {depth_scale}")
-    return Calibration(width, height, *vals[:4], tuple(vals[4:]), depth_scale)
+    fx, fy, cx, cy = vals[:4]
+    return Calibration(width, height, fx, fy, cx, cy, tuple(vals[4:]), depth_scale)
 
 
 def calibration_yaml(

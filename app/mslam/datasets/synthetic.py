@@ -77,6 +77,9 @@ class SyntheticSequence(FrameSequence):
         fps: frame rate used for timestamps ``i / fps``.
     """
 
+    T_WC: FloatArray
+    K: FloatArray
+
     def __init__(
         self,
         path: str,

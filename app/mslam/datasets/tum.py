@@ -117,7 +117,8 @@ def load_tum(
     if cal is None:
         for key, vals in TUM_CALIB.items():
             if key in folder.name:
-                cal = Calibration(640, 480, *vals[:4], tuple(vals[4:]), 5000.0)
+                fx, fy, cx, cy = vals[:4]
+                cal = Calibration(640, 480, fx, fy, cx, cy, tuple(vals[4:]), 5000.0)
     return FileSequence(folder.name, rgb_paths, stamps, depth_paths, T_WC, cal, 5000.0, size)
 
 
@@ -133,7 +134,8 @@ def _eth3d_calibration(path: Path, first_rgb: Path) -> Calibration | None:
     if len(vals) != 4:
         return None
     H, W = read_rgb(first_rgb).shape[:2]
-    return Calibration(W, H, *vals, (), 5000.0)
+    fx, fy, cx, cy = vals
+    return Calibration(W, H, fx, fy, cx, cy, (), 5000.0)
 
 
 def _tum_line(t: float, T: FloatArray) -> str:
@@ -192,7 +194,7 @@ def write_tum_sequence(
             (tmp / "groundtruth.txt").write_text(
                 "# timestamp tx ty tz qx qy qz qw (camera-to-world)\n" + "\n".join(gt) + "\n"
             )
-        if seq.K is not None:
+        if seq.K is not None and W is not None and H is not None:
             ds = depth_scale if depth_lines else None
             (tmp / "calib.yaml").write_text(calibration_yaml(seq.K, W, H, ds))
         if out.is_dir():

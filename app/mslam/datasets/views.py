@@ -16,6 +16,7 @@ import cv2
 import numpy as np
 
 from mslam.datasets.frame import Frame, FrameSequence
+from mslam_ref.conventions import FloatArray
 from mslam_ref.pointmap import scale_intrinsics
 
 __all__ = ["ResizedSequence", "SubsampledSequence", "TruncatedSequence"]
@@ -61,9 +62,11 @@ class ResizedSequence(FrameSequence):
         f = self.base[i]
         size = (self.width, self.height)
         rgb = cv2.resize(f.rgb, size, interpolation=cv2.INTER_AREA)
-        depth = None
-        if f.depth is not None:
-            depth = cv2.resize(f.depth, size, interpolation=cv2.INTER_NEAREST)
+        depth: FloatArray | None = None
+        if f.depth is not None:  # float64 in, float64 out
+            depth = np.asarray(
+                cv2.resize(f.depth, size, interpolation=cv2.INTER_NEAREST), np.float64
+            )
         return dataclasses.replace(f, rgb=rgb, depth=depth)
 
 

@@ -129,7 +129,11 @@ def colmap_model(system: SlamSystem, K: FloatArray, all_frames: bool = False) ->
         frame_index=np.array([i for i, _, _ in rows], np.int64),
     )
     v, u = np.mgrid[stride // 2 : H : stride, stride // 2 : W : stride]
-    xyz, rgb, err, img_id, idx = [], [], [], [], []
+    xyz: list[FloatArray] = []
+    rgb: list[np.ndarray] = []
+    err: list[FloatArray] = []
+    img_id: list[np.ndarray] = []
+    idx: list[np.ndarray] = []
     for n, (_, k, _) in enumerate(rows):
         if k < 0:
             model.xy.append(np.zeros((0, 2)))

@@ -108,7 +108,7 @@ class SystemTap:
             self.observer.on_frame(i, frame.rgb, T_WC, status)
             self._send_keyframes(system, i, force=False)
             self._send_poses_and_edges(system)
-            if status == "relocalised" and T_WC is not None:
+            if status == "relocalised" and rec is not None and T_WC is not None:
                 self.observer.on_reloc(i, rec.kf, T_WC)
 
     def finish(self, system: SlamSystem) -> None:

@@ -133,7 +133,7 @@ class ExportRequest:
                 origin = "given (calibrated mode)" if given else _ESTIMATED
         if self._tap is not None:
             self._finish_recording(system, sequence)
-            if self.rerun is not None:
+            if self.rerun is not None and self._tmp is not None:
                 (stage / self.rerun).parent.mkdir(parents=True, exist_ok=True)
                 shutil.move(self._tmp, stage / self.rerun)
                 done["rerun"] = str(self.rerun)
