@@ -15,7 +15,8 @@ after a relocalisation), made by the frontend or, with ``single_thread: False``,
    every pixel by default); the poses are written back.
 
 All of it happens inside the current map (``map_start`` on, ``mslam.system.recovery``): the
-keyframes of earlier maps get no new edge and keep their poses. After each step the current
+keyframes of earlier maps get no new edge and keep their poses, until a merge
+(``mslam.system.merge``) joins the current map to the one before it. After each step the current
 map's keyframes go through the divergence watch's spread test (``DivergenceMonitor.check_map``).
 
 Public names, in reading order:
@@ -102,6 +103,11 @@ class Backend:
     def start_map(self) -> None:
         """The next keyframe starts a new map: edges, solves and relocalisation stay in it."""
         self.map_start = len(self.keyframes)
+
+    def join_map(self, first: int) -> None:
+        """The current map continues the one that starts at keyframe ``first`` (a merge,
+        ``mslam.system.merge``): edges, solves and relocalisation reach back to it."""
+        self.map_start = int(first)
 
     def add_keyframe(
         self,
