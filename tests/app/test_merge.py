@@ -30,6 +30,8 @@ LOOP = "synthetic:loop:56:96x72"
 BLIND = range(16, 20)  # frames the blind prior sees nothing in: a new map starts after them
 MAX_LOST = 4  # recovery.max_lost_frames
 BEFORE_RETURN = 40  # frames of the loop that never come back to its start
+#: A longer blind stretch: maps started inside it hold one blank keyframe each.
+LOOP_LONG, BLIND_LONG = "synthetic:loop:64:96x72", range(12, 24)
 
 
 class _BlindPrior:
@@ -54,13 +56,13 @@ class _BlindPrior:
                        p.X_ji, one(p.C_ji), p.D_ji, z(p.Q_ji))  # fmt: skip
 
 
-def _run(max_frames: int | None = None):
+def _run(max_frames: int | None = None, loop: str = LOOP, blind: range = BLIND):
     import mslam_fast
 
     mslam_fast.init("cpu", "f64")
     cfg = load_config(None, [f"recovery.max_lost_frames={MAX_LOST}"])
-    src = open_source(LOOP, cfg, max_frames=max_frames)
-    src.prior = _BlindPrior(src.prior, BLIND)
+    src = open_source(loop, cfg, max_frames=max_frames)
+    src.prior = _BlindPrior(src.prior, blind)
     system, meta = run_slam(src, cfg, load_kernels("fast"))
     return system, summary_dict(system, meta, evaluate_run(system, src.sequence))
 
@@ -161,18 +163,44 @@ def test_only_agreeing_connections_merge() -> None:
     assert group is not None and {id(c) for c in group} == {id(c) for c in good}
 
 
-def test_merges_keep_segments_consecutive_and_are_reported() -> None:
+def test_merges_record_segments_and_the_maps_passed_over() -> None:
     rec = Recovery()
     rec.new_map(10, 4, "lost")
     rec.new_map(20, 7, "lost")
-    assert rec.previous_segment() == (1, 4, 7)
-    rec.merged({"into": 1, "frame": 30, "keyframe": 9, "old_keyframe": 5, "connections": 2,
+    rec.new_map(30, 8, "lost")
+    assert rec.layout() == (8, [])
+    rec.merged({"into": 1, "frame": 35, "keyframe": 9, "old_keyframe": 5, "connections": 2,
                 "scale": 1.1, "rot_deg": 3.0, "translation": 0.2})  # fmt: skip
-    assert rec.segment_of(2) == 1 and rec.previous_segment() == (0, 0, 4)
+    # Map 3 joined map 1 past map 2, whose keyframe (7) stays out of the current map.
+    assert rec.segment_of(3) == 1 and rec.segment_of(2) == 2
+    assert rec.layout() == (4, [(7, 8)])
     rec.merged({"into": 0, "frame": 40, "keyframe": 11, "old_keyframe": 2, "connections": 3,
                 "scale": 0.9, "rot_deg": 1.0, "translation": 0.1})  # fmt: skip
-    assert rec.segment_of(2) == 0 and rec.previous_segment() is None
+    assert rec.segment_of(3) == 0 and rec.segment_of(1) == 0 and rec.layout() == (0, [(7, 8)])
     warnings = rec.report([], 12)["warnings"]
     assert "merged into map 0 at frame 40" in warnings[0]
-    assert "merged into map 1 at frame 30" in warnings[1]
-    assert not any("not merged" in w for w in warnings)
+    assert "was started at frame 20" in warnings[1] and "maps are not merged" in warnings[1]
+    assert "merged into map 1 at frame 35" in warnings[2]
+
+
+@pytest.fixture(scope="module")
+def passing_over():
+    return _run(loop=LOOP_LONG, blind=BLIND_LONG)
+
+
+def test_a_merge_passes_over_maps_that_saw_nothing(passing_over) -> None:
+    system, s = passing_over
+    maps = s["maps"]
+    assert len(maps) >= 3 and maps[-1]["merged"] is not None, maps
+    assert maps[-1]["merged"]["into"] == 0
+    between = maps[1:-1]  # maps started inside the blind stretch: one blank keyframe each
+    assert all(m["merged"] is None for m in between)
+    skipped = {
+        k for m in between for k in range(m["first_keyframe"], m["first_keyframe"] + m["keyframes"])
+    }
+    assert skipped and all(not system.backend.in_map(k) for k in skipped)
+    assert not any(e.i in skipped or e.j in skipped for e in system.graph.edges)
+    # The keyframe that made the merge is where the first map's frame puts it (the map's far
+    # end keeps the drift it had: nothing joins it to the first map there).
+    err = _errors_under_first_map(system, maps[1]["first_keyframe"])
+    assert err[maps[-1]["merged"]["keyframe"]] < MERGED_KEYFRAME_M, err

@@ -1,11 +1,12 @@
 """Map merging — a new map joins the earlier one when the camera returns to it.
 
 A new map (``mslam.system.recovery``) starts at the pose of the last posed frame, so how it
-sits relative to the earlier map is only a guess. While the current segment of maps is not
-the first, every new keyframe ``k`` of it looks for the earlier segment's keyframes it sees:
+sits relative to the earlier maps is only a guess. While the current map (a *segment*: the
+maps merged so far, ``mslam.system.recovery``) does not start at map 0, every new keyframe
+``k`` of it looks for the earlier maps' keyframes it sees:
 
-1. **retrieval** — the retrieval database's scores of ``k``'s features against the keyframes
-   of the segment before (``MergeConfig.candidates`` best with a score above
+1. **retrieval** — the retrieval database's scores of ``k``'s features against every keyframe
+   before the current segment's first (``MergeConfig.candidates`` best with a score above
    ``retrieval.min_thresh``);
 2. **edges** — each candidate pair is decoded and matched both ways as every graph edge is
    (``EdgeBuilder.accepted``), with relocalisation's match fraction
@@ -20,17 +21,19 @@ the first, every new keyframe ``k`` of it looks for the earlier segment's keyfra
 5. **agreement** — one connection can be wrong (a repeated texture, a prior that fails on a
    far-apart pair), so a merge needs ``min_support`` verified connections (kept across the
    segment's keyframes, their corrections recomputed from the current poses) whose
-   corrections agree: rotations within ``max_rot_deg``, scales within a factor
-   ``max_scale_ratio``, and the new keyframes' centres put within ``max_move_frac`` of the
-   old keyframe's scene depth of each other.
+   corrections agree (and whose old keyframes lie in one earlier segment): rotations within
+   ``max_rot_deg``, scales within a factor ``max_scale_ratio``, and the new keyframes' centres
+   put within ``max_move_frac`` of the old keyframe's scene depth of each other.
 
 Then the merge: every keyframe of the current segment is moved by the agreeing connection
 with the most inliers' ``S`` (frame poses are stored relative to keyframes and follow), the
-connections' edges enter the graph (kind ``"merge"``), the backend's map reaches back to the
-earlier segment's first keyframe (``Backend.join_map``: the solve then holds that segment's
-first keyframe fixed, so the earlier map stays where it was), the global solve runs, and
-``Recovery.merged`` records it. Merging into the immediately previous segment only keeps the
-segments consecutive runs of keyframes and every solve's graph connected and anchored.
+connections' edges enter the graph (kind ``"merge"``), ``Recovery.merged`` records it, and the
+backend's map becomes the union (``Backend.join_map`` with ``Recovery.layout``): it reaches
+back to the earlier segment's first keyframe, which the solve holds fixed, so the earlier map
+stays where it was; maps between the two that are not part of either (maps a merge passes
+over, e.g. a map started while the camera saw nothing) are left out of edges, solves and
+relocalisation (``Backend.in_map``), so every solve's graph stays connected and anchored.
+Then the global solve runs.
 
 Public names, in reading order:
     MergeConfig, Connection, correction, agree, MapMerger
@@ -38,6 +41,7 @@ Public names, in reading order:
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -147,20 +151,20 @@ class MapMerger:
         """Forget the pending connections (a new map starts)."""
         self.pending = []
 
-    def candidates(self, backend: Backend, k: int, first: int, end: int) -> list[int]:
-        """Keyframes ``first .. end - 1`` that retrieval ranks best for keyframe ``k``."""
+    def candidates(self, backend: Backend, k: int, end: int) -> list[int]:
+        """Keyframes ``0 .. end - 1`` that retrieval ranks best for keyframe ``k``."""
         db = backend.retrieval.db
-        if db is None or end <= first:
+        if db is None or end <= 0:
             return []
-        scores = np.asarray(db.scores(backend.keyframes[k].features))[first:end]
+        scores = np.asarray(db.scores(backend.keyframes[k].features))[:end]
         order = np.argsort(-scores, kind="stable")[: self.cfg.candidates]
-        return [first + int(o) for o in order if scores[o] > backend.retrieval.cfg.min_thresh]
+        return [int(o) for o in order if scores[o] > backend.retrieval.cfg.min_thresh]
 
     def connect(
-        self, backend: Backend, k: int, first: int, end: int, min_match_frac: float
+        self, backend: Backend, k: int, end: int, min_match_frac: float
     ) -> list[Connection]:
-        """Verified connections of keyframe ``k`` to keyframes ``first .. end - 1``."""
-        cands = self.candidates(backend, k, first, end)
+        """Verified connections of keyframe ``k`` to keyframes ``0 .. end - 1``."""
+        cands = self.candidates(backend, k, end)
         if not cands:
             return []
         frac = max(min_match_frac, self.cfg.min_match_frac)
@@ -185,12 +189,20 @@ class MapMerger:
                 found.append(Connection(e, T, stats["inlier_frac"], int(stats["matches"])))
         return found
 
-    def agreeing(self, store: KeyframeStore) -> list[Connection] | None:
-        """The largest set of pending connections that agree with its best one, if it has
-        ``min_support`` members (best: most inliers)."""
+    def agreeing(
+        self, store: KeyframeStore, target: Callable[[int], int] | None = None
+    ) -> list[Connection] | None:
+        """The largest set of pending connections that agree with one of them, if it has
+        ``min_support`` members, best first (most inliers); ``target`` (old keyframe ->
+        its segment) keeps a set to one earlier segment."""
+        seg = target or (lambda j: 0)
         best: list[Connection] | None = None
         for a in self.pending:
-            group = [b for b in self.pending if b is a or agree(a, b, store, self.cfg)]
+            group = [
+                b
+                for b in self.pending
+                if b is a or (seg(b.edge.j) == seg(a.edge.j) and agree(a, b, store, self.cfg))
+            ]
             if len(group) >= self.cfg.min_support and (best is None or len(group) > len(best)):
                 best = group
         if best is None:
@@ -204,33 +216,36 @@ class MapMerger:
 
         Args:
             backend: the map.
-            recovery: the maps' record (``previous_segment``, ``merged``).
+            recovery: the maps' record (``segment_of``, ``merged``, ``layout``).
             k: the new keyframe.
             min_match_frac: ``reloc.min_match_frac``.
 
         Returns:
             (8,) the correction applied to the current segment, or None (no merge).
         """
-        seg = recovery.previous_segment()
-        if seg is None or not recovery.cfg.merge_maps or k < backend.map_start:
+        if not recovery.cfg.merge_maps or backend.map_start == 0 or not backend.in_map(k):
             return None
-        into, first, end = seg
-        self.pending += self.connect(backend, k, first, end, min_match_frac)
-        group = self.agreeing(backend.keyframes)
+        self.pending += self.connect(backend, k, backend.map_start, min_match_frac)
+
+        def target(j: int) -> int:
+            return recovery.segment_of(recovery.map_of(j))
+
+        group = self.agreeing(backend.keyframes, target)
         if group is None:
             return None
+        into = target(group[0].edge.j)
         S = correction(group[0], backend.keyframes)
         with backend.lock:
-            moved = np.arange(backend.map_start, len(backend.keyframes))
+            moved = np.array([c for c in range(len(backend.keyframes)) if backend.in_map(c)])
             backend.keyframes.set_poses(sim3.mul(S, backend.keyframes.poses()[moved]), moved)
             backend.graph.edges.extend(c.edge for c in group)
-        backend.join_map(first)
         rot = float(np.degrees(2 * np.arccos(np.clip(abs(S[6]), 0.0, 1.0))))
         recovery.merged({
             "into": into, "frame": int(backend.keyframes[k].frame.index), "keyframe": group[0].edge.i,
             "old_keyframe": group[0].edge.j, "connections": len(group), "scale": float(S[7]),
             "rot_deg": rot, "translation": float(np.linalg.norm(S[:3])),
         })  # fmt: skip
+        backend.join_map(*recovery.layout())
         self.pending = []
         with backend.stats.timer("backend"):
             backend.solve()

@@ -20,12 +20,13 @@ position and scale relate to the old map's is only as good as that one pose. The
 builds edges and solves inside the current map only, relocalisation searches only its
 keyframes, and the keyframes of earlier maps keep their last poses — until the maps are
 merged (``mslam.system.merge``, ``recovery.merge_maps``): while the current map is not the
-first, each of its new keyframes looks for verified connections to the keyframes of the map
-before it, and once two of them agree on one Sim(3) correction, every keyframe of the current
-map is moved by that correction (frame poses, stored relative to keyframes, follow), the
+first, each of its new keyframes looks for verified connections to the keyframes of earlier
+maps, and once two of them agree on one Sim(3) correction, every keyframe of the current map
+is moved by that correction (frame poses, stored relative to keyframes, follow), the
 connections become graph edges, and the two maps are one for the backend from then on (a
-*segment*: a merged map's keyframes belong to the segment of the map it was merged into, and
-a later merge joins the whole segment to the one before it). ``summary.json`` says what
+*segment*, named by its first map: a merged map belongs to the segment it was merged into,
+and a later merge joins the whole segment to an earlier one; maps in between that neither
+joined stay apart, ``layout``). ``summary.json`` says what
 happened: ``maps`` (one entry per map: the frame that started it, its first keyframe, frames
 posed in it, the reason, and ``merged``: None, or the map it was merged into, at which frame
 and keyframe, and the correction's scale, rotation and translation) and one sentence per new
@@ -158,28 +159,28 @@ class Recovery:
         self._refused.clear()
 
     def segment_of(self, m: int) -> int:
-        """The map that map ``m``'s keyframes are now solved with: ``m``, or the first map of
-        the chain of merges it was joined to."""
+        """The segment of map ``m``, named by its first map: ``m``, or the first map of the
+        chain of merges it was joined to."""
         while self.maps[m]["merged"] is not None:
             m = int(self.maps[m]["merged"]["into"])
         return m
 
-    def previous_segment(self) -> tuple[int, int, int] | None:
-        """``(map, first keyframe, end keyframe)`` of the segment before the current one (the
-        one a merge would join), or None when the current segment starts at map 0."""
-        current = self.segment_of(len(self.maps) - 1)
-        if current == 0:
-            return None
-        prev = self.segment_of(current - 1)
-        return (
-            prev,
-            int(self.maps[prev]["first_keyframe"]),
-            int(self.maps[current]["first_keyframe"]),
-        )
+    def layout(self) -> tuple[int, list[tuple[int, int]]]:
+        """The current segment as the backend needs it: its first keyframe, and the keyframe
+        ranges ``[a, b)`` after it that belong to other segments (maps a merge passed over)."""
+        root = self.segment_of(len(self.maps) - 1)
+        ends = [int(m["first_keyframe"]) for m in self.maps[1:]]
+        excluded = [
+            (int(self.maps[m]["first_keyframe"]), ends[m])
+            for m in range(root + 1, len(self.maps) - 1)
+            if self.segment_of(m) != root and ends[m] > int(self.maps[m]["first_keyframe"])
+        ]
+        return int(self.maps[root]["first_keyframe"]), excluded
 
     def merged(self, record: dict[str, Any]) -> None:
-        """Record that the current segment's first map was merged: ``record`` holds ``into``
-        (the map), ``frame`` and ``keyframe`` (where it happened) and the correction."""
+        """Record that the current segment was merged: ``record`` holds ``into`` (the first map
+        of the segment it joined), ``frame`` and ``keyframe`` (where it happened) and the
+        correction; the entry of the segment's first map gets it."""
         self.maps[self.segment_of(len(self.maps) - 1)]["merged"] = dict(record)
 
     def map_of(self, kf: int) -> int:
