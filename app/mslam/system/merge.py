@@ -9,7 +9,8 @@ maps merged so far, ``mslam.system.recovery``) does not start at map 0, every ne
    before the current segment's first (``MergeConfig.candidates`` best with a score above
    ``retrieval.min_thresh``);
 2. **edges** — each candidate pair is decoded and matched both ways as every graph edge is
-   (``EdgeBuilder.accepted``), with relocalisation's match fraction
+   (``EdgeBuilder.decode`` and ``match``, after the early exit of ``edges.cannot_pass``); the
+   edge's match fraction must reach relocalisation's
    (``reloc.min_match_frac``) or ``MergeConfig.min_match_frac``, whichever is stricter;
 3. **verification** — the matched canonical points must fit one similarity
    (``mslam.system.loop_verify.fit_edge``): at least ``min_inlier_frac`` inliers, above the
