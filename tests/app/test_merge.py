@@ -56,11 +56,11 @@ class _BlindPrior:
                        p.X_ji, one(p.C_ji), p.D_ji, z(p.Q_ji))  # fmt: skip
 
 
-def _run(max_frames: int | None = None, loop: str = LOOP, blind: range = BLIND):
+def _run(max_frames: int | None = None, loop: str = LOOP, blind: range = BLIND, overrides=()):
     import mslam_fast
 
     mslam_fast.init("cpu", "f64")
-    cfg = load_config(None, [f"recovery.max_lost_frames={MAX_LOST}"])
+    cfg = load_config(None, [f"recovery.max_lost_frames={MAX_LOST}", *overrides])
     src = open_source(loop, cfg, max_frames=max_frames)
     src.prior = _BlindPrior(src.prior, blind)
     system, meta = run_slam(src, cfg, load_kernels("fast"))
@@ -98,6 +98,14 @@ def test_the_camera_returning_merges_the_second_map_onto_the_first(returning) ->
     err = _errors_under_first_map(system, first_new)
     assert err[merged["keyframe"]] < MERGED_KEYFRAME_M, err
     assert np.median(err[first_new:]) < MERGED_MAP_MEDIAN_M, err
+
+
+def test_the_background_backend_merges_too() -> None:
+    system, s = _run(overrides=["single_thread=false"])
+    merged = s["maps"][1]["merged"]
+    assert merged is not None and merged["into"] == 0, s["maps"]
+    err = _errors_under_first_map(system, s["maps"][1]["first_keyframe"])
+    assert err[merged["keyframe"]] < MERGED_KEYFRAME_M, err
 
 
 def test_a_second_map_in_places_the_first_never_saw_stays_apart() -> None:
