@@ -226,7 +226,8 @@ class MapMerger:
         """
         if not recovery.cfg.merge_maps or backend.map_start == 0 or not backend.in_map(k):
             return None
-        self.pending += self.connect(backend, k, backend.map_start, min_match_frac)
+        with backend.stats.timer("merge"):  # the search; the solve after a merge is "backend"
+            self.pending += self.connect(backend, k, backend.map_start, min_match_frac)
 
         def target(j: int) -> int:
             return recovery.segment_of(recovery.map_of(j))
