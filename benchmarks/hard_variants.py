@@ -29,7 +29,8 @@ turned about its optical axis (``M Rz^T``). Synthetic sources need no files: run
 Usage: ``python benchmarks/hard_variants.py OUT_DIR [--clip FOLDER] [--only NAME ...]``, then
 ``mslam run OUT_DIR/NAME --prior twoview --out RUN`` (``OUT_DIR/video/clip.mp4`` for ``video``)
 and ``python benchmarks/hard_variants.py --table RUN ...`` for one Markdown row per run
-(posed share, ATE, keyframes, frames per second, plausible, maps, warnings).
+(posed share, ATE, keyframes, frames per second, plausible, maps and how many were merged,
+warnings).
 """
 
 from __future__ import annotations
@@ -187,10 +188,12 @@ def write_variant(clip: Path, out: Path, name: str) -> Path:
 def table_row(run: Path) -> str:
     """One Markdown row of a run's ``summary.json``."""
     s = read_summary(run)
+    merged = sum(m.get("merged") is not None for m in s["maps"])
+    maps = f"{len(s['maps'])}" + (f" ({merged} merged)" if merged else "")
     return (
         f"| {run.name} | {s['frames']} | {s['posed_pct']:.1f} | {s['ate_cm']} | "
         f"{s['keyframes']} | "
-        f"{s['frames_per_second']:.2f} | {s['plausible']} | {len(s['maps'])} | "
+        f"{s['frames_per_second']:.2f} | {s['plausible']} | {maps} | "
         f"{'; '.join(s['warnings']) or '-'} |"
     )
 

@@ -70,6 +70,7 @@ RANGES: dict[str, tuple[bool, float, float, bool]] = {
     "recovery.max_lost_frames": (True, 0, 1_000_000, False),
     "recovery.max_refusals": (True, 0, 1_000_000, False),
     "recovery.refusal_window": (True, 1, 1_000_000, False),
+    "recovery.merge_maps": (True, 0, 1, False),
     "rgbd_prior.n_features": (True, 10, 100_000, False),
     "rgbd_prior.detect_min_width": (True, 0, 8192, False),
     "rgbd_prior.detect_max_width": (True, 0, 8192, False),

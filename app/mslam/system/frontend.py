@@ -26,7 +26,9 @@ top-down in :meth:`SlamSystem.step`:
   with ``single_thread: False`` (``mslam.system.worker``).
 * **RELOC** — :func:`mslam.system.reloc.relocalise` on the frame; on success mode → TRACKING.
   When relocalisation keeps failing or poses keep being refused, a new map starts (mode →
-  INIT, anchored at the last posed frame; :mod:`mslam.system.recovery`).
+  INIT, anchored at the last posed frame; :mod:`mslam.system.recovery`). The new map's
+  keyframes look for verified connections to the map before it and, once they agree, the two
+  are merged (:mod:`mslam.system.merge`).
 
 Every frame's pose is stored *relative to a keyframe* (``T_CkCf``) and composed with the final
 keyframe poses at the end (``frame_poses``), so the per-frame trajectory benefits from the
@@ -37,6 +39,8 @@ Public names, in reading order:
 """
 
 from __future__ import annotations
+
+from dataclasses import replace
 
 import numpy as np
 
@@ -49,6 +53,7 @@ from mslam.system.edges import KnownPairs
 from mslam.system.global_opt import Backend
 from mslam.system.graph import FactorGraph
 from mslam.system.keyframes import KeyframeStore
+from mslam.system.merge import MapMerger
 from mslam.system.parallax import ParallaxSteps, TrackedFrame
 from mslam.system.recovery import Recovery, RecoveryConfig, frame_contrast
 from mslam.system.reloc import relocalise
@@ -87,6 +92,7 @@ class SlamSystem(ParallaxSteps):
         self.worker = None if cfg.single_thread else BackendWorker(self.backend.step)
         self.mode = Mode.INIT
         self.recovery = Recovery(RecoveryConfig.from_sections(cfg.sections))
+        self.merger = MapMerger()  # joins a new map to the one before it (system.merge)
         self.anchor = sim3.identity()  # the pose of the current map's first keyframe
         self.T_WC_last = sim3.identity()
         self.poses: list[FramePose] = []
@@ -167,6 +173,7 @@ class SlamSystem(ParallaxSteps):
         self.backend.start_map()
         self.recovery.new_map(int(frame.index), len(self.keyframes), reason)
         self.divergence.new_map()
+        self.merger.reset()
         self.tracker.idx_f2k, self.last_tracked = None, None
         self.init_candidate, self.init_pending = None, []
         self.mode = Mode.INIT
@@ -271,9 +278,24 @@ class SlamSystem(ParallaxSteps):
         the background worker (``single_thread: False``, ``mslam.system.worker``)."""
         if self.worker is not None:
             self.worker.submit(k, self.last_pair())
+        else:
+            self.backend.step(k, self.last_pair())
+            self.T_WC_last = self.keyframes[k].T_WC.copy()
+        if self.backend.map_start > 0:
+            self.merge_maps(k)
+
+    def merge_maps(self, k: int) -> None:
+        """In a map after the first, look for connections of keyframe ``k`` to the map before
+        it and merge the two when they agree (:mod:`mslam.system.merge`; with the worker, its
+        queue is drained first); the frontend's world-frame poses follow the correction."""
+        self.wait_for_backend()
+        S = self.merger.step(self.backend, self.recovery, k, self.cfg.reloc.min_match_frac)
+        if S is None:
             return
-        self.backend.step(k, self.last_pair())
-        self.T_WC_last = self.keyframes[k].T_WC.copy()
+        self.T_WC_last = sim3.mul(S, self.T_WC_last)
+        if self.last_tracked is not None:
+            self.last_tracked = replace(self.last_tracked, T_WC=sim3.mul(S, self.last_tracked.T_WC))
+        self.divergence.reset()  # the path continues in the earlier map's frame
 
     def wait_for_backend(self) -> None:
         """Return once the background worker (if any) has processed every queued keyframe."""

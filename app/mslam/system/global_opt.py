@@ -15,7 +15,8 @@ after a relocalisation), made by the frontend or, with ``single_thread: False``,
    every pixel by default); the poses are written back.
 
 All of it happens inside the current map (``map_start`` on, ``mslam.system.recovery``): the
-keyframes of earlier maps get no new edge and keep their poses. After each step the current
+keyframes of earlier maps get no new edge and keep their poses, until a merge
+(``mslam.system.merge``) joins the current map to an earlier one (``in_map``). After each step the current
 map's keyframes go through the divergence watch's spread test (``DivergenceMonitor.check_map``).
 
 Public names, in reading order:
@@ -98,10 +99,23 @@ class Backend:
         self.loop_checks: list[dict[str, Any]] = []
         #: The first keyframe of the current map (``mslam.system.recovery``).
         self.map_start = 0
+        #: Keyframe ranges ``[a, b)`` after ``map_start`` that are not in the current map (maps
+        #: that a merge passed over, ``mslam.system.merge``).
+        self.excluded: list[tuple[int, int]] = []
 
     def start_map(self) -> None:
         """The next keyframe starts a new map: edges, solves and relocalisation stay in it."""
-        self.map_start = len(self.keyframes)
+        self.map_start, self.excluded = len(self.keyframes), []
+
+    def join_map(self, first: int, excluded: list[tuple[int, int]]) -> None:
+        """The current map continues the one that starts at keyframe ``first`` (a merge,
+        ``mslam.system.merge``): edges, solves and relocalisation reach back to it, except to
+        the keyframe ranges ``excluded`` (other maps in between)."""
+        self.map_start, self.excluded = int(first), [(int(a), int(b)) for a, b in excluded]
+
+    def in_map(self, k: int) -> bool:
+        """Whether keyframe ``k`` belongs to the current map."""
+        return k >= self.map_start and not any(a <= k < b for a, b in self.excluded)
 
     def add_keyframe(
         self,
@@ -157,7 +171,8 @@ class Backend:
             self.add_keyframe_edges(k, known)
         with self.stats.timer("backend"):
             self.solve()
-        T_kf = self.keyframes.poses()[self.map_start :]
+        # The spread watch reads the current map's keyframes after any map a merge passed over.
+        T_kf = self.keyframes.poses()[max([self.map_start, *(b for _, b in self.excluded)]) :]
         self.divergence.check_map(int(self.keyframes[k].frame.index), T_kf,
                                   self.keyframe_depths(len(T_kf)))  # fmt: skip
 
@@ -180,7 +195,7 @@ class Backend:
         candidates += self.retrieval.update(kf.features)
         seen: list[int] = []
         for c in candidates:
-            if c != k and c not in seen and self.map_start <= c < len(self.keyframes):
+            if c != k and c not in seen and self.in_map(c) and c < len(self.keyframes):
                 seen.append(int(c))
         if not seen:
             return 0
@@ -223,7 +238,10 @@ class Backend:
             X, C = self.keyframes.pointmaps(fusion, self.K)
         stride = self.cfg.backend_pixel_stride(X.shape[1:3])
         pixels = None if stride == 1 else np.flatnonzero(residual_grid(X.shape[1:3], stride))
-        blocks = self.graph.two_way_blocks(pixels, first=self.map_start)
+        graph = self.graph
+        if self.excluded:  # leave the maps a merge passed over out of the solve
+            graph = FactorGraph([e for e in graph.edges if self.in_map(e.i) and self.in_map(e.j)])
+        blocks = graph.two_way_blocks(pixels, first=self.map_start)
         if len(blocks.ii) == 0:
             return None
         graph = backend.pose_graph(

@@ -16,7 +16,7 @@ inliers and the fitted rotation is within ``max_rot_deg`` of the current estimat
 ``R(T_WCi⁻¹ T_WCj)``.
 
 Public names, in reading order:
-    LoopVerifyConfig, fit_sim3_ransac, verify_edge
+    LoopVerifyConfig, fit_sim3_ransac, fit_edge, verify_edge
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ from mslam.system.keyframes import KeyframeStore
 from mslam_ref import sim3
 from mslam_ref.conventions import FloatArray
 
-__all__ = ["LoopVerifyConfig", "fit_sim3_ransac", "verify_edge"]
+__all__ = ["LoopVerifyConfig", "fit_edge", "fit_sim3_ransac", "verify_edge"]
 
 
 @dataclass(frozen=True)
@@ -119,6 +119,60 @@ def fit_sim3_ransac(
     return R[best], t[best], float(s[best]), mask
 
 
+def _fit(
+    edge: Edge, store: KeyframeStore, Q_conf: float, cfg: LoopVerifyConfig
+) -> tuple[tuple[FloatArray, FloatArray, float] | None, dict[str, float]]:
+    """``((R, t, s) or None, stats)``: the RANSAC fit of :func:`fit_edge`, statistics
+    ``matches``, ``inlier_frac``, ``rot_deg`` (180, filled in by :func:`verify_edge`)."""
+    X_i = np.asarray(store[edge.i].state.X_canon, np.float64).reshape(-1, 3)
+    X_j = np.asarray(store[edge.j].state.X_canon, np.float64).reshape(-1, 3)
+    valid = np.asarray(edge.valid_match_j, bool) & (np.asarray(edge.Q_j) > Q_conf)
+    n = np.flatnonzero(valid)
+    if len(n) > cfg.max_points:
+        n = n[np.linspace(0, len(n) - 1, cfg.max_points).astype(np.int64)]
+    stats = {"matches": float(len(n)), "inlier_frac": 0.0, "rot_deg": 180.0}
+    if len(n) < cfg.min_points:
+        return None, stats
+    src, dst = X_j[n], X_i[np.asarray(edge.idx_i2j)[n]]
+    ok = np.all(np.isfinite(src), 1) & np.all(np.isfinite(dst), 1)
+    if ok.sum() < cfg.min_points:
+        return None, stats
+    R, t, s, inl = fit_sim3_ransac(src[ok], dst[ok], cfg)
+    stats["inlier_frac"] = float(inl.sum() / len(n))
+    return (R, t, s), stats
+
+
+def fit_edge(
+    edge: Edge, store: KeyframeStore, Q_conf: float, cfg: LoopVerifyConfig = LoopVerifyConfig()
+) -> tuple[FloatArray | None, dict[str, float]]:
+    """The similarity between an edge's two cameras that its matched points support.
+
+    The RANSAC fit of the module docstring, ``X_i ≈ s R X_j + t`` over the valid matches
+    (at most ``max_points``, evenly spaced), as a Sim(3) element ``T_CiCj`` (points of
+    camera j to camera i).
+
+    Args:
+        edge: ``mslam.system.graph.Edge`` (``i``, ``j``, ``idx_i2j``, ``valid_match_j``, ``Q_j``).
+        store: the keyframes (``store[k].state.X_canon`` (N, 3)).
+        Q_conf: quality threshold of a valid match.
+        cfg: thresholds (``max_points``, ``min_points``, the RANSAC's).
+
+    Returns:
+        ``(T_CiCj, stats)``: (8,) the fit, or None with fewer than ``min_points`` finite valid
+        matches or a degenerate fit (``s <= 0``); stats ``matches``, ``inlier_frac``.
+    """
+    fit, stats = _fit(edge, store, Q_conf, cfg)
+    del stats["rot_deg"]
+    if fit is None:
+        return None, stats
+    R, t, s = fit
+    if not (np.isfinite(s) and s > 0 and np.linalg.det(R) > 0):
+        return None, stats
+    M = np.eye(4)
+    M[:3, :3], M[:3, 3] = s * R, t
+    return sim3.from_matrix(M), stats
+
+
 def verify_edge(
     edge: Edge, store: KeyframeStore, Q_conf: float, cfg: LoopVerifyConfig = LoopVerifyConfig()
 ) -> tuple[bool, dict[str, float]]:
@@ -133,24 +187,13 @@ def verify_edge(
     Returns:
         ``(accepted, stats)`` with stats ``matches``, ``inlier_frac``, ``rot_deg``.
     """
-    X_i = np.asarray(store[edge.i].state.X_canon, np.float64).reshape(-1, 3)
-    X_j = np.asarray(store[edge.j].state.X_canon, np.float64).reshape(-1, 3)
-    valid = np.asarray(edge.valid_match_j, bool) & (np.asarray(edge.Q_j) > Q_conf)
-    n = np.flatnonzero(valid)
-    if len(n) > cfg.max_points:
-        n = n[np.linspace(0, len(n) - 1, cfg.max_points).astype(np.int64)]
-    stats = {"matches": float(len(n)), "inlier_frac": 0.0, "rot_deg": 180.0}
-    if len(n) < cfg.min_points:
+    fit, stats = _fit(edge, store, Q_conf, cfg)
+    if fit is None:
         return False, stats
-    src, dst = X_j[n], X_i[np.asarray(edge.idx_i2j)[n]]
-    ok = np.all(np.isfinite(src), 1) & np.all(np.isfinite(dst), 1)
-    if ok.sum() < cfg.min_points:
-        return False, stats
-    R, _, _, inl = fit_sim3_ransac(src[ok], dst[ok], cfg)
+    R = fit[0]
     T_ij = sim3.mul(sim3.inv(store[edge.i].T_WC), store[edge.j].T_WC)
     R_est = sim3.to_matrix(T_ij)[:3, :3] / T_ij[7]
     cos = np.clip((np.trace(R_est.T @ R) - 1) / 2, -1.0, 1.0)
-    stats["inlier_frac"] = float(inl.sum() / len(n))
     stats["rot_deg"] = float(np.degrees(np.arccos(cos)))
     accepted = stats["inlier_frac"] >= cfg.min_inlier_frac and stats["rot_deg"] <= cfg.max_rot_deg
     return accepted, stats

@@ -13,15 +13,24 @@ starts a new one from the incoming frames, as at the start of a run:
   (``mslam.system.divergence``) within the last ``recovery.refusal_window`` frames.
 
 Maps are consecutive segments of the keyframe store: map ``m`` holds the keyframes from its
-``first_keyframe`` to the next map's. The backend builds edges and solves inside the current
-map only, relocalisation searches only its keyframes, and the keyframes of earlier maps keep
-their last poses. The new map's first keyframe is anchored at the final pose (rotation,
-position and Sim(3) scale) of the last frame that had a pose, so the trajectory stays in one
-frame of reference and in the TUM format; but how the new map's orientation, position and
-scale relate to the old map's is only as good as that one pose, and the maps are not merged
-(no edge, loop closure or relocalisation joins them). ``summary.json`` says so: ``maps``
-(one entry per map: the frame that started it, its first keyframe, frames posed in it, the
-reason) and one sentence per new map in ``warnings``.
+``first_keyframe`` to the next map's. The new map's first keyframe is anchored at the final pose
+(rotation, position and Sim(3) scale) of the last frame that had a pose, so the trajectory
+stays in one frame of reference and in the TUM format; but how the new map's orientation,
+position and scale relate to the old map's is only as good as that one pose. The backend
+builds edges and solves inside the current map only, relocalisation searches only its
+keyframes, and the keyframes of earlier maps keep their last poses — until the maps are
+merged (``mslam.system.merge``, ``recovery.merge_maps``): while the current map is not the
+first, each of its new keyframes looks for verified connections to the keyframes of earlier
+maps, and once two of them agree on one Sim(3) correction, every keyframe of the current map
+is moved by that correction (frame poses, stored relative to keyframes, follow), the
+connections become graph edges, and the two maps are one for the backend from then on (a
+*segment*, named by its first map: a merged map belongs to the segment it was merged into,
+and a later merge joins the whole segment to an earlier one; maps in between that neither
+joined stay apart, ``layout``). ``summary.json`` says what
+happened: ``maps`` (one entry per map: the frame that started it, its first keyframe, frames
+posed in it, the reason, and ``merged``: None, or the map it was merged into, at which frame
+and keyframe, and the correction's scale, rotation and translation) and one sentence per new
+map in ``warnings`` (merged or not, and when).
 
 Public names, in reading order:
     frame_contrast, RecoveryConfig, Recovery
@@ -63,11 +72,14 @@ class RecoveryConfig:
         max_lost_frames: consecutive lost frames that start a new map.
         max_refusals: refused frame poses within ``refusal_window`` frames that start one.
         refusal_window: frames over which refusals are counted.
+        merge_maps: 1: a new map is merged into the one before it once verified connections
+            agree (``mslam.system.merge``); 0: maps stay apart.
     """
 
     max_lost_frames: int = 15
     max_refusals: int = 4
     refusal_window: int = 30
+    merge_maps: int = 1
 
     @classmethod
     def from_sections(cls, sections: Mapping[str, Any]) -> RecoveryConfig:
@@ -83,13 +95,14 @@ class Recovery:
     Attributes:
         cfg: the triggers.
         maps: one dict per map: ``map``, ``first_frame`` (the frame that started it; None for
-            the first), ``first_keyframe``, ``reason`` (None for the first).
+            the first), ``first_keyframe``, ``reason`` (None for the first), ``merged`` (None,
+            or the record of :meth:`merged`).
     """
 
     cfg: RecoveryConfig = field(default_factory=RecoveryConfig)
     maps: list[dict[str, Any]] = field(
         default_factory=lambda: [
-            {"map": 0, "first_frame": None, "first_keyframe": 0, "reason": None}
+            {"map": 0, "first_frame": None, "first_keyframe": 0, "reason": None, "merged": None}
         ]
     )
 
@@ -140,10 +153,35 @@ class Recovery:
         the counters restart."""
         self.maps.append(
             {"map": len(self.maps), "first_frame": int(index),
-             "first_keyframe": int(first_keyframe), "reason": reason}
+             "first_keyframe": int(first_keyframe), "reason": reason, "merged": None}
         )  # fmt: skip
         self._lost_run = 0
         self._refused.clear()
+
+    def segment_of(self, m: int) -> int:
+        """The segment of map ``m``, named by its first map: ``m``, or the first map of the
+        chain of merges it was joined to."""
+        while self.maps[m]["merged"] is not None:
+            m = int(self.maps[m]["merged"]["into"])
+        return m
+
+    def layout(self) -> tuple[int, list[tuple[int, int]]]:
+        """The current segment as the backend needs it: its first keyframe, and the keyframe
+        ranges ``[a, b)`` after it that belong to other segments (maps a merge passed over)."""
+        root = self.segment_of(len(self.maps) - 1)
+        ends = [int(m["first_keyframe"]) for m in self.maps[1:]]
+        excluded = [
+            (int(self.maps[m]["first_keyframe"]), ends[m])
+            for m in range(root + 1, len(self.maps) - 1)
+            if self.segment_of(m) != root and ends[m] > int(self.maps[m]["first_keyframe"])
+        ]
+        return int(self.maps[root]["first_keyframe"]), excluded
+
+    def merged(self, record: dict[str, Any]) -> None:
+        """Record that the current segment was merged: ``record`` holds ``into`` (the first map
+        of the segment it joined), ``frame`` and ``keyframe`` (where it happened) and the
+        correction; the entry of the segment's first map gets it."""
+        self.maps[self.segment_of(len(self.maps) - 1)]["merged"] = dict(record)
 
     def map_of(self, kf: int) -> int:
         """The map keyframe ``kf`` belongs to."""
@@ -167,10 +205,21 @@ class Recovery:
             {**m, "keyframes": max(0, end - m["first_keyframe"]), "frames_posed": posed.get(i, 0)}
             for i, (m, end) in enumerate(zip(self.maps, ends, strict=True))
         ]
-        warnings = [
-            f"a new map (map {m['map']}) was started at frame {m['first_frame']}: "
-            f"{m['reason']}; it is anchored at the last posed frame's pose and scale, not "
-            "aligned to the earlier map (maps are not merged)"
-            for m in self.maps[1:]
-        ]
+        warnings = [_map_warning(m) for m in self.maps[1:]]
         return {"maps": maps, "warnings": warnings}
+
+
+def _map_warning(m: Mapping[str, Any]) -> str:
+    """The summary's sentence for new map ``m`` (an entry of :attr:`Recovery.maps`)."""
+    head = f"a new map (map {m['map']}) was started at frame {m['first_frame']}: {m['reason']}; "
+    g = m["merged"]
+    if g is None:
+        return head + (
+            "it is anchored at the last posed frame's pose and scale, not aligned to the "
+            "earlier map (maps are not merged)"
+        )
+    return head + (
+        f"it was merged into map {g['into']} at frame {g['frame']} (keyframe {g['keyframe']} "
+        f"connected to keyframe {g['old_keyframe']}; correction: scale {g['scale']:.3g}, "
+        f"rotation {g['rot_deg']:.1f} deg, translation {g['translation']:.3g})"
+    )

@@ -52,8 +52,8 @@ def relocalise(frame: Frame, prior: Prior, backend: Backend, cfg: RelocConfig) -
         X, C = prior.mono(frame)
         p = prior.pair(frame, frame)
     features = backend.retrieval.features(p.D_ii, p.Q_ii)
-    # Keyframes of the current map only (earlier maps are not joined, mslam.system.recovery).
-    candidates = [c for c in backend.retrieval.query(features) if c >= backend.map_start]
+    # Keyframes of the current map only (an earlier map joins it only by a merge, system.merge).
+    candidates = [c for c in backend.retrieval.query(features) if backend.in_map(c)]
     if not candidates:
         return False
     n = backend.add_keyframe(frame, sim3.identity(), X, C, p.D_ii, p.Q_ii)
