@@ -19,6 +19,7 @@ from mslam.system import open_source, run_slam
 from mslam.system.divergence import (
     DivergenceConfig,
     DivergenceMonitor,
+    divergence_report,
     guard_backend,
     trajectory_warnings,
 )
@@ -76,13 +77,17 @@ def test_trajectory_warnings_flag_an_orientation_that_jumps() -> None:
     T[:, 3:7] = so3.exp(np.radians(3.8) * k[:, None] * np.array([0.0, 1.0, 0.0]))
     T[:, 7] = 1.0
     assert trajectory_warnings(T, idx=k) == []
-    kept = np.r_[0:30, 45:60]  # 15 frames without a pose: the turn over the gap is no jump
-    assert trajectory_warnings(T[kept], idx=k[kept]) == []
+    kidnap = T.copy()
+    kidnap[45:, 3:7] = so3.mul(kidnap[45:, 3:7], so3.exp(np.radians([90.0, 0.0, 0.0])))
+    kept = np.r_[0:30, 45:60]  # 15 frames without a pose: a turn across them is no jump
+    assert trajectory_warnings(kidnap[kept], idx=k[kept]) == []
     wrong = T.copy()
     off = so3.exp(np.radians(40.0) * np.array([1.0, 0.0, 0.0]))
     wrong[40::2, 3:7] = so3.mul(wrong[40::2, 3:7], off)
     assert trajectory_warnings(wrong) == []  # without frame indices the test does not run
     assert any("orientation jumps" in w for w in trajectory_warnings(wrong, idx=k))
+    assert not divergence_report(DivergenceMonitor(), [], wrong, [], idx=k)["plausible"]
+    assert divergence_report(DivergenceMonitor(), [], T, [], idx=k)["plausible"]
 
 
 def test_sim3_ransac_finds_the_similarity_despite_outliers() -> None:

@@ -7,11 +7,12 @@ its trace in the final trajectory all the same: the frames tracked against it an
 tracked against its neighbours disagree, so the orientation steps back and forth between
 consecutive frames by about the keyframe's error.
 
-:func:`turn_warnings` takes the posed frames in frame order and flags a step between
-consecutive ones that exceeds both ``rot_jump_factor`` times the trajectory's median rate of
-turn (degrees per frame) times the frames between them, and ``min_rot_jump_deg`` (a camera at
-rest has a rate near zero; a fast hand-held pan at 30 frames per second turns a few degrees
-per frame). The test is a report (``summary.json``'s ``warnings``, ``plausible`` false), not a
+:func:`turn_warnings` takes the posed frames in frame order and flags a turn between two
+consecutive frames (frame indices one apart) that exceeds both ``rot_jump_factor`` times the
+median of those turns and ``min_rot_jump_deg`` (a camera at rest has a median near zero; a
+fast hand-held pan at 30 frames per second turns a few degrees per frame). Frames on either
+side of a span without poses are not compared: the camera may have turned while it was lost
+(a kidnapped camera, relocalised elsewhere). The test is a report (``summary.json``'s ``warnings``, ``plausible`` false), not a
 refusal while running: a frame that turns far from the one before it may be the right one of
 the two.
 
@@ -36,10 +37,10 @@ class TurnConfig:
     """Thresholds of an orientation jump (module docstring).
 
     Attributes:
-        rot_jump_factor: a turn larger than this many median rates (per frame, times the
-            frames between the two posed frames) ...
+        rot_jump_factor: a turn between consecutive frames larger than this many times the
+            median such turn ...
         min_rot_jump_deg: ... and larger than this many degrees is a jump.
-        min_frames: posed frames needed before the test applies.
+        min_frames: pairs of consecutive posed frames needed before the test applies.
 
     ``synthetic:rotation:60`` turns 3.8° per frame (226° in 60 frames); a keyframe 41° off
     there gave steps of 35-40° between consecutive frames (2026-11-26).
@@ -62,19 +63,20 @@ def turn_warnings(idx: FloatArray, q: FloatArray, cfg: TurnConfig = TurnConfig()
     """A warning (a list of one sentence, or none) when a trajectory's orientation jumps.
 
     Args:
-        idx: (M,) frame indices of the posed frames (any order; they are sorted).
+        idx: (M,) frame indices of the posed frames (any order; they are sorted; each index
+            once).
         q: (M, 4) their orientations (unit quaternions of ``T_WC``).
         cfg: thresholds (module docstring).
     """
     f = np.asarray(idx, np.float64).reshape(-1)
     order = np.argsort(f, kind="stable")
     f, q = f[order], np.asarray(q, np.float64).reshape(-1, 4)[order]
-    if len(f) < cfg.min_frames:
+    next_frame = np.diff(f) == 1  # consecutive frames; none across a span without poses
+    if next_frame.sum() < cfg.min_frames:
         return []
-    gaps = np.maximum(np.diff(f), 1.0)
-    steps = turn_angles_deg(q[:-1], q[1:])
-    rate = float(np.median(steps / gaps))
-    big = steps > np.maximum(cfg.rot_jump_factor * rate * gaps, cfg.min_rot_jump_deg)
+    steps = np.where(next_frame, turn_angles_deg(q[:-1], q[1:]), 0.0)
+    rate = float(np.median(steps[next_frame]))
+    big = steps > max(cfg.rot_jump_factor * rate, cfg.min_rot_jump_deg)
     if not big.any():
         return []
     k = int(np.argmax(np.where(big, steps, 0.0)))
