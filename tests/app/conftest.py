@@ -1,6 +1,6 @@
 """Fixtures of the application tests.
 
-* ``rotation_run``: the pure-rotation run through a relocalisation
+* ``rotation_run``: the pure-rotation run through two relocalisations
   (``rotation_scenario.run_rotation``), run once and shared by every rotation test.
 """
 

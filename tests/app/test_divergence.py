@@ -19,12 +19,13 @@ from mslam.system import open_source, run_slam
 from mslam.system.divergence import (
     DivergenceConfig,
     DivergenceMonitor,
+    divergence_report,
     guard_backend,
     trajectory_warnings,
 )
 from mslam.system.loop_verify import LoopVerifyConfig, fit_sim3_ransac
 from mslam.system.outputs import evaluate_run, summary_dict
-from mslam_ref import sim3
+from mslam_ref import sim3, so3
 
 LOOP = "synthetic:loop:24:64x48"
 CORRUPT_FROM = 12
@@ -65,6 +66,28 @@ def test_trajectory_warnings_flag_a_runaway_path() -> None:
     runaway = smooth.copy()
     runaway[60:, 0] = 0.6 + 3.0 ** np.arange(40)  # 1e19 at the end, as a diverging run
     assert any("jumps" in w for w in trajectory_warnings(runaway))
+
+
+def test_trajectory_warnings_flag_an_orientation_that_jumps() -> None:
+    """A camera turning 3.8° per frame about its centre (``synthetic:rotation:60``'s rate):
+    no warning, with or without lost frames; frames of a keyframe 40° off, tracked in turns
+    with frames of its neighbour, make the orientation jump back and forth: a warning."""
+    k = np.arange(60)
+    T = np.zeros((60, 8))
+    T[:, 3:7] = so3.exp(np.radians(3.8) * k[:, None] * np.array([0.0, 1.0, 0.0]))
+    T[:, 7] = 1.0
+    assert trajectory_warnings(T, idx=k) == []
+    kidnap = T.copy()
+    kidnap[45:, 3:7] = so3.mul(kidnap[45:, 3:7], so3.exp(np.radians([90.0, 0.0, 0.0])))
+    kept = np.r_[0:30, 45:60]  # 15 frames without a pose: a turn across them is no jump
+    assert trajectory_warnings(kidnap[kept], idx=k[kept]) == []
+    wrong = T.copy()
+    off = so3.exp(np.radians(40.0) * np.array([1.0, 0.0, 0.0]))
+    wrong[40::2, 3:7] = so3.mul(wrong[40::2, 3:7], off)
+    assert trajectory_warnings(wrong) == []  # without frame indices the test does not run
+    assert any("orientation jumps" in w for w in trajectory_warnings(wrong, idx=k))
+    assert not divergence_report(DivergenceMonitor(), [], wrong, [], idx=k)["plausible"]
+    assert divergence_report(DivergenceMonitor(), [], T, [], idx=k)["plausible"]
 
 
 def test_sim3_ransac_finds_the_similarity_despite_outliers() -> None:

@@ -44,6 +44,7 @@ from typing import Any
 
 import numpy as np
 
+from mslam.system.turns import TurnConfig, turn_warnings
 from mslam_ref import so3
 from mslam_ref.conventions import FloatArray
 
@@ -89,6 +90,7 @@ class DivergenceConfig:
         min_jump_scale_frac: a step shorter than this share of the Sim(3) scale (the last
             accepted frame's; in the final trajectory, the smaller of its two frames') is
             never a jump.
+        turn: the orientation-jump thresholds (:class:`mslam.system.turns.TurnConfig`).
     """
 
     window: int = 20
@@ -104,6 +106,7 @@ class DivergenceConfig:
     min_drift_trend: float = 0.8
     max_spacing_growth: float = 25.0
     min_jump_scale_frac: float = 0.05
+    turn: TurnConfig = field(default_factory=TurnConfig)
 
 
 @dataclass
@@ -308,9 +311,12 @@ def map_spread(
     return None
 
 
-def trajectory_warnings(T_WC: FloatArray, cfg: DivergenceConfig = DivergenceConfig()) -> list[str]:
+def trajectory_warnings(
+    T_WC: FloatArray, cfg: DivergenceConfig = DivergenceConfig(), idx: FloatArray | None = None
+) -> list[str]:
     """Warnings about a final per-frame trajectory (M, 8): non-finite poses, jumps far beyond
-    its median step, a spread far beyond its path length allows."""
+    its median step, a spread far beyond its path length allows; with the frame indices
+    ``idx`` (M,), orientation jumps too (:func:`mslam.system.turns.turn_warnings`)."""
     T = np.asarray(T_WC, dtype=np.float64).reshape(-1, 8)
     if len(T) == 0:
         return []
@@ -318,6 +324,8 @@ def trajectory_warnings(T_WC: FloatArray, cfg: DivergenceConfig = DivergenceConf
     out = []
     if not finite.all():
         out.append(f"{int((~finite).sum())} frame pose(s) are not finite")
+    if idx is not None:
+        out += turn_warnings(np.asarray(idx)[finite], T[finite, 3:7], cfg.turn)
     P = T[finite, :3]
     if len(P) < 3:
         return out
@@ -349,6 +357,7 @@ def divergence_report(
     loop_checks: list[dict[str, Any]],
     T_WC: FloatArray,
     warnings: list[str],
+    idx: FloatArray | None = None,
 ) -> dict[str, Any]:
     """The summary's divergence fields: ``warnings`` (the given ones plus the monitor's and
     :func:`trajectory_warnings`' of the final frame poses), ``plausible`` (no warning) and
@@ -360,8 +369,9 @@ def divergence_report(
         loop_checks: the loop-closure verdicts (``Backend.loop_checks``).
         T_WC: (M, 8) the final per-frame poses.
         warnings: the warnings found so far (``mslam.system.health.health_report``).
+        idx: (M,) the frames of ``T_WC`` (orientation jumps are tested with them).
     """
-    out = [*warnings, *monitor.warnings(), *trajectory_warnings(T_WC)]
+    out = [*warnings, *monitor.warnings(), *trajectory_warnings(T_WC, idx=idx)]
     return {
         "warnings": out,
         "plausible": not out,

@@ -195,7 +195,7 @@ class SlamSystem(ParallaxSteps):
         self.stats.reloc_attempts += 1
         self.wait_for_backend()
         with self.stats.timer("reloc"):
-            ok = relocalise(frame, self.prior, self.backend, self.cfg.reloc)
+            ok = relocalise(frame, self.prior, self.backend, self.cfg.reloc, self.place_relocalised)
         if not ok:
             self.stats.lost_frames += 1
             self.record(frame, -1, None, FrameStatus.LOST)

@@ -155,11 +155,11 @@ def evaluate_run(system: SlamSystem, sequence: FrameSequence) -> dict[str, Any]:
 def summary_dict(system: SlamSystem, meta: dict[str, Any], ev: dict[str, Any]) -> dict[str, Any]:
     """The JSON summary (docs/upstream.md §13 plus what users ask for, §14)."""
     st = system.stats
-    graph = system.graph
+    graph, graph_checks = system.graph, system.backend.loop_checks
     spans = [e.j - e.i for e in graph.edges if e.kind == "retrieval"]
     seconds = float(meta.get("seconds", 0.0))
     frames = st.frames
-    _, _, T_WC = system.frame_poses()
+    idx_posed, _, T_WC = system.frame_poses()
     out = {
         "source": meta.get("source"),
         "frames": frames,
@@ -196,7 +196,7 @@ def summary_dict(system: SlamSystem, meta: dict[str, Any], ev: dict[str, Any]) -
     maps = system.recovery.report(system.poses, len(system.keyframes))  # mslam.system.recovery
     out["maps"] = maps["maps"]
     warnings = [*out["warnings"], *maps["warnings"]]
-    out.update(divergence_report(system.divergence, system.backend.loop_checks, T_WC, warnings))
+    out.update(divergence_report(system.divergence, graph_checks, T_WC, warnings, idx_posed))
     if "ate" in ev:
         out["ate"] = ev["ate"]
         out["ate_rmse"] = ev["ate"]["ate_rmse"]

@@ -31,6 +31,10 @@ pairs without parallax apart:
   the relocalisation at frame 41 were 23-29° off their true orientation; with the rotated
   pointmap the run relocalises at frame 40, 0.7° further off than the last frame before the
   loss, and the frames after it are 2-10° off, as before the loss).
+* a relocalised keyframe has no depth of its own either (the prior's ``mono`` of a frame it
+  never paired is a plane with ``C = NO_INFO_C``, which the backend's ``C_conf`` masks): it
+  takes depth and pose from its pair with the accepted candidate
+  (:meth:`ParallaxSteps.place_relocalised`).
 
 Public names, in reading order:
     prior_status, parallax_px, rotated_pointmap, KeyframePair, TrackedFrame,
@@ -303,3 +307,46 @@ class ParallaxSteps:
             p = replace(p, X_ii=X, C_ii=C)
         self.make_keyframe(last.frame, last.T_WC, p)
         return True
+
+    def place_relocalised(self, n: int, best: int) -> None:
+        """Give relocalised keyframe ``n`` depth and a pose from its pair with the accepted
+        candidate ``best`` (``mslam.system.reloc``), for a prior without single-image depth.
+
+        Such a prior's ``mono`` of a frame it has never paired is a fronto-parallel plane with
+        ``C = NO_INFO_C``: the backend's ``C_conf`` masks every residual of the keyframe, so
+        the solve cannot move it from the candidate's pose it was given. Instead, as when
+        tracking, the pair ``prior.pair(frame of n, frame of best)`` places it: with parallax,
+        its own pointmap ``X_ii`` and a tracking solve against ``best`` that fuses nothing;
+        without, ``best``'s points seen through its rays (:func:`rotated_pointmap`) and the
+        pair's rotation. A pair that gives neither leaves the keyframe as it is.
+        """
+        if not getattr(self.prior, "needs_parallax", False):
+            return
+        kf, ref = self.backend.keyframes[n], self.backend.keyframes[best]
+        with self.stats.timer("prior"):
+            p = self.prior.pair(kf.frame, ref.frame)
+        status = self.pair_status(p)
+        R = getattr(self.prior, "last_R_ji", None) if status == "parallax" else None
+        if status not in ("ok", "parallax"):
+            return
+        res = None
+        if R is None:
+            res = self.tracker.track(ref, p, ref.T_WC, fuse=False)
+            self.tracker.idx_f2k = None
+            if res is None:
+                return
+        if status == "ok" and res is not None:
+            X, C, T_WC = np.asarray(p.X_ii, np.float64), np.asarray(p.C_ii), res.T_WC
+        else:
+            q = so3.from_matrix(R) if R is not None else np.asarray(res.T_CkCf[3:7], np.float64)
+            X, C = rotated_pointmap(
+                ref.state.X_canon.reshape(*ref.shape, 3),
+                fusion.average_confidence(ref.state).reshape(ref.shape),
+                so3.to_matrix(q),
+                np.asarray(p.X_ii, np.float64),
+            )
+            T_WC = sim3.mul(ref.T_WC, np.concatenate([np.zeros(3), q, [1.0]]))
+        state = fusion.init_pointmap(X.reshape(-1, 3), C.reshape(-1), self.backend.fusion_cfg)
+        with self.backend.lock:
+            kf.state, kf.X_map = state, np.asarray(state.X_canon, np.float64).copy()
+            kf.T_WC, kf.T_WC_init = np.asarray(T_WC, np.float64), np.asarray(T_WC, np.float64)

@@ -25,6 +25,8 @@ Public names, in reading order:
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 from mslam.config import RelocConfig
 from mslam.datasets.frame import Frame
 from mslam.priors.base import Prior
@@ -34,7 +36,13 @@ from mslam_ref import sim3
 __all__ = ["relocalise"]
 
 
-def relocalise(frame: Frame, prior: Prior, backend: Backend, cfg: RelocConfig) -> bool:
+def relocalise(
+    frame: Frame,
+    prior: Prior,
+    backend: Backend,
+    cfg: RelocConfig,
+    place: Callable[[int, int], None] | None = None,
+) -> bool:
     """Try to relocalise ``frame``; True (and a new keyframe, the last one) on success.
 
     Upstream: main.py::relocalization. Paper: §3.6.
@@ -44,6 +52,8 @@ def relocalise(frame: Frame, prior: Prior, backend: Backend, cfg: RelocConfig) -
         prior: its ``mono`` and ``pair`` give the frame's pointmap and descriptors.
         backend: the map (keyframes, graph, retrieval) and the global solve.
         cfg: ``reloc.*`` (``min_match_frac``, ``strict``).
+        place: ``(new keyframe, best candidate) -> None``, run before the solve, may replace
+            the copied pose and the pointmap (``ParallaxSteps.place_relocalised``).
 
     Returns:
         whether the frame was relocalised.
@@ -76,6 +86,8 @@ def relocalise(frame: Frame, prior: Prior, backend: Backend, cfg: RelocConfig) -
     best = next(c for c in candidates if c in accepted)
     kf.T_WC = backend.keyframes[best].T_WC.copy()
     kf.T_WC_init = kf.T_WC.copy()
+    if place is not None:
+        place(n, best)
     with backend.stats.timer("backend"):
         backend.solve()
     return True
