@@ -68,6 +68,27 @@ def test_trajectory_warnings_flag_a_runaway_path() -> None:
     assert any("jumps" in w for w in trajectory_warnings(runaway))
 
 
+def test_a_cut_is_a_jump_unless_a_merge_placed_the_frames_after_it() -> None:
+    """A video cut: frames 0-74 walk one way, 90-149 continue 3 m away after 15 unposed
+    frames. Unmerged, that step is a jump; when the map started at frame 80 was merged into the
+    earlier one (its positions placed by verified connections) it is not, but a jump elsewhere
+    still is."""
+    idx = np.r_[0:75, 90:150]
+    T = np.stack([_pose(0.01 * k + (3.0 if k >= 90 else 0.0)) for k in idx])
+    maps = {"maps": [{"first_frame": None, "merged": None}, {"first_frame": 80, "merged": {}}]}
+    assert any("between frames 74 and 90" in w for w in trajectory_warnings(T, idx=idx))
+    assert trajectory_warnings(T, idx=idx, joined=[80]) == []
+    assert divergence_report(DivergenceMonitor(), [], T, [], idx=idx, maps=maps)["plausible"]
+    unmerged = {"maps": [maps["maps"][0], {"first_frame": 80, "merged": None}]}
+    assert not divergence_report(DivergenceMonitor(), [], T, [], idx=idx, maps=unmerged)[
+        "plausible"
+    ]
+    T[idx >= 120, 0] += 3.0  # a second jump, inside the merged map
+    assert any(
+        "between frames 119 and 120" in w for w in trajectory_warnings(T, idx=idx, joined=[80])
+    )
+
+
 def test_trajectory_warnings_flag_an_orientation_that_jumps() -> None:
     """A camera turning 3.8° per frame about its centre (``synthetic:rotation:60``'s rate):
     no warning, with or without lost frames; frames of a keyframe 40° off, tracked in turns

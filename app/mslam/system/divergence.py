@@ -39,6 +39,7 @@ Public names, in reading order:
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -312,11 +313,19 @@ def map_spread(
 
 
 def trajectory_warnings(
-    T_WC: FloatArray, cfg: DivergenceConfig = DivergenceConfig(), idx: FloatArray | None = None
+    T_WC: FloatArray,
+    cfg: DivergenceConfig = DivergenceConfig(),
+    idx: FloatArray | None = None,
+    joined: Sequence[int] = (),
 ) -> list[str]:
     """Warnings about a final per-frame trajectory (M, 8): non-finite poses, jumps far beyond
     its median step, a spread far beyond its path length allows; with the frame indices
-    ``idx`` (M,), orientation jumps too (:func:`mslam.system.turns.turn_warnings`)."""
+    ``idx`` (M,), orientation jumps too (:func:`mslam.system.turns.turn_warnings`).
+
+    ``joined`` lists the frames that started a map later merged into an earlier one
+    (``mslam.system.merge``): the step from the last posed frame before such a frame to the
+    first after it is the camera's own jump (a cut, or motion lost while unposed), placed by
+    the merge's verified connections, so it is not tested as a jump (needs ``idx``)."""
     T = np.asarray(T_WC, dtype=np.float64).reshape(-1, 8)
     if len(T) == 0:
         return []
@@ -337,11 +346,14 @@ def trajectory_warnings(
     # for the first quarter has a median step near zero there).
     sc = np.abs(T[finite, 7])
     big = np.where(steps > cfg.min_jump_scale_frac * np.minimum(sc[:-1], sc[1:]), steps, 0.0)
+    f = np.asarray(idx)[finite] if idx is not None else np.arange(len(P))
+    for j in joined:  # the step into a merged map's first posed frame
+        big[(f[:-1] < j) & (f[1:] >= j)] = 0.0
     if med > 0 and big.max() > cfg.max_final_jump * med:
         k = int(np.argmax(big))
         out.append(
-            f"the trajectory jumps {big.max() / med:.3g} median steps between posed frames "
-            f"{k} and {k + 1}; positions after a jump are not trustworthy"
+            f"the trajectory jumps {big.max() / med:.3g} median steps between frames "
+            f"{int(f[k])} and {int(f[k + 1])}; positions after a jump are not trustworthy"
         )
     s = T[finite, 7]
     if np.all(s > 0) and s.max() / s.min() > cfg.max_final_scale_ratio:
@@ -358,6 +370,7 @@ def divergence_report(
     T_WC: FloatArray,
     warnings: list[str],
     idx: FloatArray | None = None,
+    maps: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """The summary's divergence fields: ``warnings`` (the given ones plus the monitor's and
     :func:`trajectory_warnings`' of the final frame poses), ``plausible`` (no warning) and
@@ -370,8 +383,12 @@ def divergence_report(
         T_WC: (M, 8) the final per-frame poses.
         warnings: the warnings found so far (``mslam.system.health.health_report``).
         idx: (M,) the frames of ``T_WC`` (orientation jumps are tested with them).
+        maps: ``mslam.system.recovery.Recovery.report``'s answer; the first frames of the maps
+            it lists as merged are ``joined`` for :func:`trajectory_warnings`.
     """
-    out = [*warnings, *monitor.warnings(), *trajectory_warnings(T_WC, idx=idx)]
+    merged = [m for m in (maps or {}).get("maps", []) if m.get("merged") is not None]
+    joined = [int(m["first_frame"]) for m in merged]
+    out = [*warnings, *monitor.warnings(), *trajectory_warnings(T_WC, idx=idx, joined=joined)]
     return {
         "warnings": out,
         "plausible": not out,

@@ -194,9 +194,8 @@ def summary_dict(system: SlamSystem, meta: dict[str, Any], ev: dict[str, Any]) -
         health_report(system.poses, frames, out["frames_with_pose"], out["prior"], ev.get("ate"))
     )
     maps = system.recovery.report(system.poses, len(system.keyframes))  # mslam.system.recovery
-    out["maps"] = maps["maps"]
-    warnings = [*out["warnings"], *maps["warnings"]]
-    out.update(divergence_report(system.divergence, graph_checks, T_WC, warnings, idx_posed))
+    out["maps"], warnings = maps["maps"], [*out["warnings"], *maps["warnings"]]
+    out.update(divergence_report(system.divergence, graph_checks, T_WC, warnings, idx_posed, maps))
     if "ate" in ev:
         out["ate"] = ev["ate"]
         out["ate_rmse"] = ev["ate"]["ate_rmse"]
