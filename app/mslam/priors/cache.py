@@ -19,8 +19,8 @@ from __future__ import annotations
 
 import threading
 from collections import OrderedDict
-from collections.abc import Callable, Hashable
-from typing import Any
+from collections.abc import Callable, Hashable, Mapping
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -29,6 +29,9 @@ __all__ = ["DEFAULT_CACHE_BYTES", "ByteLRU", "nbytes"]
 #: Default bound of a prior's per-frame cache: 128 MiB (about 34 frames of descriptors at
 #: 160x120, 4 at 512x384).
 DEFAULT_CACHE_BYTES = 128 * 2**20
+
+#: A cache key type (the priors use tuples).
+_Key = TypeVar("_Key", bound=Hashable)
 
 
 def nbytes(value: Any) -> int:
@@ -111,7 +114,7 @@ class ByteLRU:
         self._items.clear()
         self.bytes = 0
 
-    def compute_alongside(self, jobs: dict[Hashable, Callable[[], Any]]) -> Callable[..., None]:
+    def compute_alongside(self, jobs: Mapping[_Key, Callable[[], Any]]) -> Callable[..., None]:
         """Start computing the jobs whose keys are not cached, in order, on a worker thread.
 
         Returns ``join(*keys)``: waits until those jobs (all of them when no key is given) are
@@ -144,7 +147,11 @@ class ByteLRU:
                 raise failed[0]
             for key in keys or tuple(todo):
                 if key in out:
-                    value = out.pop(key)
-                    self.get(key, lambda v=value: v)
+                    self.get(key, _returning(out.pop(key)))
 
         return join
+
+
+def _returning(value: Any) -> Callable[[], Any]:
+    """A ``compute`` for :meth:`ByteLRU.get` that returns the already computed ``value``."""
+    return lambda: value

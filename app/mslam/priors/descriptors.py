@@ -31,6 +31,7 @@ Public names, in reading order:
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
 
 import cv2
 import numpy as np
@@ -120,7 +121,7 @@ def patch_descriptors(
     if rgb.dtype != np.uint8 or rgb.ndim != 3 or rgb.shape[2] != 3:
         raise ValueError(f"rgb: expected uint8 (H, W, 3), got {rgb.dtype} {rgb.shape}")
     H, W = rgb.shape[:2]
-    img = rgb.astype(np.float32) / np.float32(255.0)
+    img: np.ndarray = rgb.astype(np.float32) / np.float32(255.0)
     if cfg.blur_sigma > 0:
         img = cv2.GaussianBlur(img, (0, 0), cfg.blur_sigma, borderType=cv2.BORDER_REFLECT)
     r = (cfg.patch // 2) * cfg.step
@@ -165,7 +166,7 @@ def _dense(
     512x384), and each block is finished while it is in cache."""
     H, W = img.shape[:2]
     r = (cfg.patch // 2) * cfg.step
-    mode = "reflect" if border == cv2.BORDER_REFLECT_101 else "edge"
+    mode: Literal["reflect", "edge"] = "reflect" if border == cv2.BORDER_REFLECT_101 else "edge"
     pad = np.pad(img, ((r, r), (r, r), (0, 0)), mode=mode)
     win = sliding_window_view(pad, (2 * r + 1, 2 * r + 1), axis=(0, 1))
     win = win[..., :: cfg.step, :: cfg.step]

@@ -46,10 +46,11 @@ def detect(rgb: np.ndarray, cfg: Any) -> tuple[np.ndarray, np.ndarray | None]:
         f = cfg.detect_max_width / W
         size = (cfg.detect_max_width, max(1, round(H * f)))
         grey = cv2.resize(grey, size, interpolation=cv2.INTER_AREA)
+    det: cv2.Feature2D
     if cfg.features == "sift":
-        det = cv2.SIFT_create(nfeatures=cfg.n_features, contrastThreshold=cfg.contrast_threshold)
+        det = cv2.SIFT.create(nfeatures=cfg.n_features, contrastThreshold=cfg.contrast_threshold)
     else:
-        det = cv2.ORB_create(nfeatures=cfg.n_features)
+        det = cv2.ORB.create(nfeatures=cfg.n_features)
     kps, desc = det.detectAndCompute(grey, None)
     if desc is None or len(kps) == 0:
         return np.zeros((0, 2)), None
@@ -74,7 +75,10 @@ def ratio_matches(d_q: np.ndarray, d_t: np.ndarray, ratio: float) -> tuple[np.nd
         knn = cv2.BFMatcher(cv2.NORM_HAMMING).knnMatch(d_q, d_t, k=2)
         pairs = [(m[0].queryIdx, m[0].trainIdx) for m in knn
                  if len(m) == 2 and m[0].distance < ratio * m[1].distance]  # fmt: skip
-        return tuple(np.array(pairs, np.int64).reshape(-1, 2).T) if pairs else empty
+        if not pairs:
+            return empty
+        q, t = np.array(pairs, np.int64).reshape(-1, 2).T
+        return q, t
     a, b = np.asarray(d_q, np.float32), np.asarray(d_t, np.float32)
     # ‖b‖² - 2 a·b, built in place in the product's own buffer (two more (Nq, Nt) temporaries
     # doubled the cost); ‖a‖² is the same along a row, so it is added to the two picks only.

@@ -54,7 +54,8 @@ class Mast3rUnavailable(ImportError, ValueError):
     prints it as one line)."""
 
 
-def _one_line(text: str) -> str:
+def _one_line(text: object) -> str:
+    """``str(text)`` (a message or an exception) on one line, runs of whitespace made one space."""
     return " ".join(str(text).split())
 
 

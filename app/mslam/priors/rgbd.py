@@ -85,6 +85,13 @@ def fill_depth(depth: FloatArray, default: float = 3.0) -> tuple[FloatArray, np.
     return depth[valid][label - 1], valid
 
 
+def _depth(frame: Frame) -> FloatArray:
+    """The frame's (H, W) depth; a ValueError naming the frame when it has none."""
+    if frame.depth is None:
+        raise ValueError(f"frame {frame.index}: the RGB-D prior needs a depth image")
+    return frame.depth
+
+
 def _kinect_sigma(z: FloatArray) -> FloatArray:
     return 0.0012 + 0.0019 * (z - 0.4) ** 2
 
@@ -235,9 +242,9 @@ class RGBDPrior:
         if self.cfg.icp_iters <= 0 or frame_i.depth is None:
             return None
 
-        def target(f: Frame):
+        def target(f: Frame) -> tuple[FloatArray, np.ndarray]:
             # The filled depth's points: ICP reads only those of valid pixels.
-            return pose.icp_target(f.depth, self.K_for(f), self._view(f)[0])
+            return pose.icp_target(_depth(f), self.K_for(f), self._view(f)[0])
 
         return self._cached("icp_target", frame_i, target)
 
@@ -250,9 +257,7 @@ class RGBDPrior:
             return self._depth_view(frame)
 
     def _depth_view(self, frame: Frame) -> tuple[FloatArray, FloatArray, np.ndarray]:
-        if frame.depth is None:
-            raise ValueError(f"frame {frame.index}: the RGB-D prior needs a depth image")
-        z, valid = fill_depth(frame.depth, self.cfg.fill_depth)
+        z, valid = fill_depth(_depth(frame), self.cfg.fill_depth)
         X = z[..., None] * self._rays(frame)  # pointmap.backproject with the rays kept
         C = np.where(
             valid, 1.0 + self.cfg.conf_max * np.exp(-_kinect_sigma(z) / self.cfg.conf_sigma), 1.0
@@ -322,7 +327,7 @@ class RGBDPrior:
         if n >= self.cfg.min_inliers:
             with self._timed("consistency"):
                 C_ji = pose.consistency(
-                    X_ji, C_jj, frame_i.depth, valid_i, self.K_for(frame_i), self.cfg
+                    X_ji, C_jj, _depth(frame_i), valid_i, self.K_for(frame_i), self.cfg
                 )
         join()
         D_ii, Q_ii = self._desc(frame_i)
@@ -363,11 +368,10 @@ class RGBDPrior:
             key("view"): compute_view,
             key("desc"): lambda: self._patch_descriptors(frame),
         }
-        if self.cfg.icp_iters > 0 and frame.depth is not None:
+        depth = frame.depth
+        if self.cfg.icp_iters > 0 and depth is not None:
             K = self.K_for(frame)
-            jobs[key("icp_target")] = lambda: pose.icp_target(
-                frame.depth, K, held.get("view", view)[0]
-            )
+            jobs[key("icp_target")] = lambda: pose.icp_target(depth, K, held.get("view", view)[0])
         self._prefetched = (int(frame.index), self.cache.compute_alongside(jobs))
 
     def join_prefetch(self) -> None:

@@ -58,7 +58,8 @@ def pnp(
     if not (np.all(np.isfinite(rvec)) and np.all(np.isfinite(tvec))):
         return sim3.identity(), 0
     rvec, tvec = cv2.solvePnPRefineLM(obj[inl], img[inl], K, None, rvec, tvec)
-    R, t = so3.to_matrix(so3.exp(rvec.ravel())), tvec.ravel()
+    w = np.asarray(rvec, np.float64).ravel()  # the rotation vector (3,)
+    R, t = so3.to_matrix(so3.exp(w)), tvec.ravel()
     if not (np.all(np.isfinite(R)) and np.all(np.isfinite(t))):
         return sim3.identity(), 0
     if np.linalg.norm(t) > cfg.max_translation:
@@ -71,7 +72,7 @@ def pnp(
     n = int(np.sum(err <= cfg.ransac_px))
     if n < cfg.min_inliers:
         return sim3.identity(), 0
-    return np.concatenate([t, so3.exp(rvec.ravel()), [1.0]]), n
+    return np.concatenate([t, so3.exp(w), [1.0]]), n
 
 
 def _cross(a: FloatArray, b: FloatArray) -> FloatArray:
@@ -146,7 +147,8 @@ def icp_sample(valid: np.ndarray, n_points: int) -> np.ndarray:
     stride = max(1, int(np.sqrt(valid.sum() / max(n_points, 1))))
     if stride == 1:
         return valid
-    return valid & strided_pixels(*valid.shape, stride)
+    H, W = valid.shape
+    return valid & strided_pixels(H, W, stride)
 
 
 def refine_icp(

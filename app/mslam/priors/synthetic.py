@@ -112,8 +112,10 @@ def _smooth_noise(rng: np.random.Generator, shape: tuple[int, int], blur: float)
     if blur <= 0:
         return n
     k = cv2.getGaussianKernel(2 * int(np.ceil(3 * blur)) + 1, blur).ravel()
-    n = cv2.sepFilter2D(n, cv2.CV_64F, k, k, borderType=cv2.BORDER_REFLECT)
-    return n / np.sqrt(np.sum(k**2) ** 2)
+    smooth = np.asarray(
+        cv2.sepFilter2D(n, cv2.CV_64F, k, k, borderType=cv2.BORDER_REFLECT), np.float64
+    )
+    return smooth / np.sqrt(np.sum(k**2) ** 2)
 
 
 def _depth_edges(z: FloatArray, thr: float) -> np.ndarray:
@@ -143,7 +145,10 @@ class SyntheticPrior:
         if sequence.K is None:
             raise ValueError(f"sequence: {sequence.name} has no intrinsics K")
         self.K = np.asarray(sequence.K, dtype=np.float64)
-        self.size = (getattr(sequence, "width", None), getattr(sequence, "height", None))
+        width, height = getattr(sequence, "width", None), getattr(sequence, "height", None)
+        #: ``(W, H)`` at which ``K`` holds, or None when the sequence does not say (then ``K``
+        #: is used at every frame size).
+        self.size = None if width is None or height is None else (int(width), int(height))
         self.cfg = cfg
         #: Patch descriptors per frame, bounded in bytes.
         self.cache = ByteLRU(cfg.desc.cache_bytes)
@@ -156,14 +161,17 @@ class SyntheticPrior:
 
     def _K_for(self, frame: Frame) -> FloatArray:
         H, W = frame.shape
-        if self.size[0] is None or (W, H) == self.size:
+        if self.size is None or (W, H) == self.size:
             return self.K
         return scale_intrinsics(self.K, self.size, (W, H))
 
     @staticmethod
-    def _check(frame: Frame, name: str) -> None:
+    def _truth(frame: Frame, name: str) -> tuple[FloatArray, FloatArray]:
+        """The frame's ``depth`` (H, W) and ``T_WC`` (8,); a ValueError naming ``name`` when
+        it lacks either."""
         if frame.depth is None or frame.T_WC is None:
             raise ValueError(f"{name}: the synthetic prior needs frames with depth and T_WC")
+        return frame.depth, frame.T_WC
 
     def sigma(self, z: FloatArray) -> FloatArray:
         """Depth-noise standard deviation ``σ(z) = depth_sigma0 + depth_sigma2 z²`` (metres)."""
@@ -174,7 +182,7 @@ class SyntheticPrior:
     ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, np.ndarray]:
         """Noisy pointmap in the frame's own camera, its C, D, Q and the outlier mask."""
         cfg = self.cfg
-        z = frame.depth
+        z, _ = self._truth(frame, "frame")
         sig = self.sigma(z)
         zn = z + sig * _smooth_noise(rng, z.shape, cfg.noise_blur_px)
         out = rng.random(z.shape) < cfg.outlier_frac
@@ -219,7 +227,7 @@ class SyntheticPrior:
 
         Upstream: mast3r_utils.py::mast3r_inference_mono. Noise terms 1, 2, 3 and 5.
         """
-        self._check(frame, "frame")
+        self._truth(frame, "frame")
         rng = np.random.default_rng([int(self.cfg.seed), 0, int(frame.index)])
         s = float(np.exp(self.cfg.pair_log_scale_sigma * rng.standard_normal()))
         X, C, _, _, _ = self._noisy_view(frame, rng)
@@ -233,13 +241,13 @@ class SyntheticPrior:
         Returns:
             :class:`PairPrediction` with X (H,W,3), C (H,W), D (H,W,24), Q (H,W) per image.
         """
-        self._check(frame_i, "frame_i")
-        self._check(frame_j, "frame_j")
+        _, T_WCi = self._truth(frame_i, "frame_i")
+        _, T_WCj = self._truth(frame_j, "frame_j")
         rng = np.random.default_rng(self._pair_seed(frame_i, frame_j))
         s_pair, E = self._pair_errors(rng)
         X_ii, C_ii, D_ii, Q_ii, _ = self._noisy_view(frame_i, rng)
         X_jj, C_jj, D_jj, Q_jj, _ = self._noisy_view(frame_j, rng)
-        T_ij = sim3.mul(sim3.inv(frame_i.T_WC), frame_j.T_WC)
+        T_ij = sim3.mul(sim3.inv(T_WCi), T_WCj)
         X_ji = s_pair * sim3.act(sim3.mul(E, T_ij), X_jj)
         unseen = ~self.covisible(frame_i, frame_j)
         f = self.cfg.covis_factor
@@ -254,13 +262,15 @@ class SyntheticPrior:
         of the camera and its depth there agrees with i's depth (nearest pixel) within
         ``rel_tol · z + 0.01`` m.
         """
-        X_jj = backproject(frame_j.depth, self._K_for(frame_j))
-        T_ij = sim3.mul(sim3.inv(frame_i.T_WC), frame_j.T_WC)
+        z_i, T_WCi = self._truth(frame_i, "frame_i")
+        z_j, T_WCj = self._truth(frame_j, "frame_j")
+        X_jj = backproject(z_j, self._K_for(frame_j))
+        T_ij = sim3.mul(sim3.inv(T_WCi), T_WCj)
         uv, z = project(sim3.act(T_ij, X_jj), self._K_for(frame_i))
         H, W = frame_i.shape
         u, v = np.round(uv[..., 0]), np.round(uv[..., 1])
         ok = (z > 1e-6) & (u >= 0) & (u <= W - 1) & (v >= 0) & (v <= H - 1)
         ui = np.clip(u, 0, W - 1).astype(np.int64)
         vi = np.clip(v, 0, H - 1).astype(np.int64)
-        zi = frame_i.depth[vi, ui]
+        zi = z_i[vi, ui]
         return ok & (np.abs(zi - z) <= rel_tol * z + 0.01)

@@ -84,10 +84,11 @@ def keyframe_scale_disagreement(
         P_w = sim3.act(T_WC[a], P_a[:: max(1, len(P_a) // max_points)])
         ratios = []
         for b in range(n):
-            if b == a or cams[b] is None or len(P_w) < min_pixels:
+            cam = cams[b]
+            if b == a or cam is None or len(P_w) < min_pixels:
                 continue
             P = sim3.act(sim3.inv(T_WC[b]), P_w)
-            fx, fy, cx, cy = cams[b]
+            fx, fy, cx, cy = cam
             z = np.where(P[:, 2] > 0, P[:, 2], 1.0)
             u = np.rint(fx * P[:, 0] / z + cx).astype(np.int64)
             v = np.rint(fy * P[:, 1] / z + cy).astype(np.int64)

@@ -154,10 +154,12 @@ class MapMerger:
 
     def candidates(self, backend: Backend, k: int, end: int) -> list[int]:
         """Keyframes ``0 .. end - 1`` that retrieval ranks best for keyframe ``k``."""
-        db = backend.retrieval.db
+        db, features = backend.retrieval.db, backend.keyframes[k].features
         if db is None or end <= 0:
             return []
-        scores = np.asarray(db.scores(backend.keyframes[k].features))[:end]
+        if features is None:  # add_keyframe computes them
+            raise RuntimeError(f"keyframe {k}: no retrieval features")
+        scores = np.asarray(db.scores(features))[:end]
         order = np.argsort(-scores, kind="stable")[: self.cfg.candidates]
         return [int(o) for o in order if scores[o] > backend.retrieval.cfg.min_thresh]
 

@@ -223,7 +223,10 @@ class ParallaxSteps:
                 self.init_pending.append(frame)
             return FrameStatus.WAITING
         k = self.backend.add_keyframe(cand, self.anchor, p.X_ii, p.C_ii, p.D_ii, p.Q_ii)
-        self.backend.retrieval.update(self.backend.keyframes[k].features)
+        features = self.backend.keyframes[k].features
+        if features is None:  # add_keyframe computes them
+            raise RuntimeError(f"keyframe {k}: added without retrieval features")
+        self.backend.retrieval.update(features)
         self.T_WC_last = self.backend.keyframes[k].T_WC.copy()
         self.record(cand, k, None, FrameStatus.KEYFRAME)
         self.mode = Mode.TRACKING
@@ -329,16 +332,19 @@ class ParallaxSteps:
         R = getattr(self.prior, "last_R_ji", None) if status == "parallax" else None
         if status not in ("ok", "parallax"):
             return
-        res = None
-        if R is None:
+        # The rotation of the pair (parallax without a pose), else that of a tracking solve.
+        if R is not None:
+            res = None
+            q = so3.from_matrix(R)
+        else:
             res = self.tracker.track(ref, p, ref.T_WC, fuse=False)
             self.tracker.idx_f2k = None
             if res is None:
                 return
+            q = np.asarray(res.T_CkCf[3:7], np.float64)
         if status == "ok" and res is not None:
             X, C, T_WC = np.asarray(p.X_ii, np.float64), np.asarray(p.C_ii), res.T_WC
         else:
-            q = so3.from_matrix(R) if R is not None else np.asarray(res.T_CkCf[3:7], np.float64)
             X, C = rotated_pointmap(
                 ref.state.X_canon.reshape(*ref.shape, 3),
                 fusion.average_confidence(ref.state).reshape(ref.shape),
