@@ -50,7 +50,7 @@ class SolveWindow:
 class FactorGraph:
     """Stored edges of the keyframe graph (upstream global_opt.py::FactorGraph).
 
-    The graph is never pruned; ``window_size`` is unused upstream too.
+    The graph is never pruned; :meth:`window` picks the keyframes one solve moves.
     """
 
     edges: list[Edge] = field(default_factory=list)
