@@ -9,7 +9,18 @@ colour images in another order, with fresh timestamps at 30 Hz:
 * ``every2`` — every second frame (twice the motion per frame);
 * ``pingpong`` — forward then backward (``2N - 1`` frames, a closed loop);
 * ``crop`` — the central 480x360 pixels of each image, written as PNG (other field of view
-  and resolution; ``calib.yaml`` shifted accordingly).
+  and resolution; ``calib.yaml`` shifted accordingly);
+
+and long sequences (revisits of the same room, for keyframe growth, loop closure, the backend's
+cost as the map grows, memory and drift):
+
+* ``pingpong2`` — forward, back, forward, back (``4N - 3`` frames; 597 for the 150-frame clip);
+* ``loop3`` — three forward-and-back round trips (``6N - 5`` frames; 895);
+* ``mixed`` — six passes alternating direction at strides 1, 2, 1, 3, 2, 1 (faster motion on
+  the strided passes; 650 frames).
+
+``--depth`` also writes ``NAME-depth``: the same frames with the clip's depth images linked
+(``associations.txt``), for the RGB-D prior on the same order.
 
 Usage: ``python benchmarks/video_variants.py OUT_DIR [--clip FOLDER] [--only NAME ...]``.
 Each variant then runs as ``mslam run OUT_DIR/NAME --prior twoview --out RUN`` (``--calib
@@ -43,7 +54,23 @@ def _orders(n: int) -> dict[str, list[int]]:
         "rev": list(range(n - 1, -1, -1)),
         "every2": list(range(0, n, 2)),
         "pingpong": list(range(n)) + list(range(n - 2, -1, -1)),
+        "pingpong2": _passes(n, [1, 1, 1, 1]),
+        "loop3": _passes(n, [1] * 6),
+        "mixed": _passes(n, [1, 2, 1, 3, 2, 1]),
     }
+
+
+def _passes(n: int, strides: list[int]) -> list[int]:
+    """Frame order of passes over ``0..n-1`` alternating direction (first forward), pass ``p``
+    taking every ``strides[p]``-th frame; a pass does not repeat the frame the last one ended
+    on, and every pass reaches the clip's end it runs towards."""
+    order = [0]
+    for p, s in enumerate(strides):
+        ahead = list(range(0, n, s)) if p % 2 == 0 else list(range(n - 1, -1, -s))
+        if ahead[-1] != (n - 1 if p % 2 == 0 else 0):
+            ahead.append(n - 1 if p % 2 == 0 else 0)
+        order += [i for i in ahead if i != order[-1]]
+    return order
 
 
 def _pose_line(path: Path) -> str:
@@ -52,14 +79,15 @@ def _pose_line(path: Path) -> str:
     return " ".join(f"{v:.9f}" for v in T[:7])
 
 
-def write_variant(clip: Path, out: Path, name: str) -> Path:
-    """Write variant ``name`` of ``clip`` into ``out / name``; returns that folder."""
+def write_variant(clip: Path, out: Path, name: str, depth: bool = False) -> Path:
+    """Write variant ``name`` of ``clip`` into ``out / name`` (``out / NAME-depth`` with the
+    depth images linked when ``depth``); returns that folder."""
     rgb = natsorted(clip.glob("frame-*.color.*"))
     order = _orders(len(rgb)).get(name, list(range(len(rgb))))
-    dst = out / name
+    dst = out / (f"{name}-depth" if depth else name)
     (dst / "rgb").mkdir(parents=True, exist_ok=True)
     fx, fy, cx, cy = 585.0, 585.0, 320.0, 240.0
-    rgb_lines, gt_lines = [], []
+    rgb_lines, gt_lines, assoc_lines = [], [], []
     for k, i in enumerate(order):
         src = rgb[i]
         stem = src.name.split(".color.")[0]
@@ -76,6 +104,10 @@ def write_variant(clip: Path, out: Path, name: str) -> Path:
                 link.unlink()
             link.symlink_to(src.resolve())
         rgb_lines.append(f"{t:.6f} rgb/{link.name}")
+        if depth:
+            assoc_lines.append(
+                f"{t:.6f} rgb/{link.name} {t:.6f} " + _link_depth(clip, dst, stem, k)
+            )
         gt_lines.append(f"{t:.6f} " + _pose_line(clip / f"{stem}.pose.txt"))
     w, h = (640, 480)
     if name == "crop":
@@ -83,10 +115,22 @@ def write_variant(clip: Path, out: Path, name: str) -> Path:
         w, h = CROP_WH
     (dst / "rgb.txt").write_text("\n".join(rgb_lines) + "\n")
     (dst / "groundtruth.txt").write_text("\n".join(gt_lines) + "\n")
+    if depth:
+        (dst / "associations.txt").write_text("\n".join(assoc_lines) + "\n")
     (dst / "calib.yaml").write_text(
         f"width: {w}\nheight: {h}\ncalibration: {[fx, fy, cx, cy]}\ndepth_scale: 1000.0\n"
     )
     return dst
+
+
+def _link_depth(clip: Path, dst: Path, stem: str, k: int) -> str:
+    """Link the clip's depth image of ``stem`` as ``depth/k.png``; returns its relative path."""
+    (dst / "depth").mkdir(exist_ok=True)
+    link = dst / "depth" / f"{k:06d}.png"
+    if link.is_symlink() or link.exists():
+        link.unlink()
+    link.symlink_to((clip / f"{stem}.depth.png").resolve())
+    return f"depth/{link.name}"
 
 
 def read_summary(run: Path) -> dict[str, object]:
@@ -118,6 +162,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--table", type=Path, nargs="*", default=None)
     ap.add_argument("--clip", type=Path, default=CLIP)
     ap.add_argument("--only", nargs="*", default=["fwd", "rev", "every2", "pingpong", "crop"])
+    ap.add_argument("--depth", action="store_true", help="also write NAME-depth (depth linked)")
     args = ap.parse_args(argv)
     if args.table is not None:
         for run in args.table:
@@ -131,6 +176,8 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     for name in args.only:
         print(write_variant(args.clip, args.out, name))
+        if args.depth and name != "crop":
+            print(write_variant(args.clip, args.out, name, depth=True))
     return 0
 
 

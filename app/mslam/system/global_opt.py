@@ -12,7 +12,9 @@ after a relocalisation), made by the frontend or, with ``single_thread: False``,
 2. ``FactorGraph.add_factors(ii=candidates, jj=[k]·n, min_match_frac=local_opt.min_match_frac)``;
 3. the global Gauss–Newton over all keyframes with edges (first one fixed), through the kernel
    set's ``backend.solve``, on the residuals of a pixel grid (``local_opt.pixels_per_edge``,
-   every pixel by default); the poses are written back.
+   every pixel by default); the poses are written back. With ``local_opt.window_size`` below
+   the map's keyframes, only the most recent ones and the new keyframe's loop partners move,
+   against their fixed neighbours (``FactorGraph.window``).
 
 All of it happens inside the current map (``map_start`` on, ``mslam.system.recovery``): the
 keyframes of earlier maps get no new edge and keep their poses, until a merge
@@ -235,20 +237,25 @@ class Backend:
         """
         with self.lock:  # one consistent snapshot (the frontend may be adding a keyframe)
             T_WC = self.keyframes.poses()
-            X, C = self.keyframes.pointmaps(fusion, self.K)
+            factors = self.graph
+            if self.excluded:  # leave the maps a merge passed over out of the solve
+                factors = FactorGraph(
+                    [e for e in factors.edges if self.in_map(e.i) and self.in_map(e.j)]
+                )
+            win = factors.window(len(T_WC), self.backend_cfg.window_size, self.map_start)
+            X, C = self.keyframes.pointmaps(fusion, self.K, indices=win.keyframes)
         stride = self.cfg.backend_pixel_stride(X.shape[1:3])
         pixels = None if stride == 1 else np.flatnonzero(residual_grid(X.shape[1:3], stride))
-        graph = self.graph
-        if self.excluded:  # leave the maps a merge passed over out of the solve
-            graph = FactorGraph([e for e in graph.edges if self.in_map(e.i) and self.in_map(e.j)])
-        blocks = graph.two_way_blocks(pixels, first=self.map_start)
+        blocks = factors.two_way_blocks(pixels, self.map_start, win if win.windowed else None)
         if len(blocks.ii) == 0:
             return None
         graph = backend.pose_graph(
             X, C, blocks.ii, blocks.jj, blocks.idx, blocks.valid, blocks.Q, self.K, pixels
         )
-        T_new, info = self.kernels.backend.solve(T_WC, graph, self.backend_cfg)
-        T_new = np.asarray(T_new, dtype=np.float64)
+        cfg = replace(self.backend_cfg, pin=win.pin) if win.windowed else self.backend_cfg
+        T_sub, info = self.kernels.backend.solve(T_WC[win.keyframes], graph, cfg)
+        T_new = T_WC.copy()  # keyframes outside the window keep their poses
+        T_new[win.keyframes] = np.asarray(T_sub, dtype=np.float64)
         why = guard_backend(T_WC, T_new, tuple(info.costs), self.divergence.cfg)
         if why is not None:  # keep the poses the solve started from (mslam.system.divergence)
             self.divergence.events.append(

@@ -103,26 +103,28 @@ class KeyframeStore:
             self._kfs[int(k)].T_WC = T.copy()
 
     def pointmaps(
-        self, fusion: ModuleType, K: FloatArray | None = None, exported: bool = False
+        self,
+        fusion: ModuleType,
+        K: FloatArray | None = None,
+        exported: bool = False,
+        indices: IntArray | None = None,
     ) -> tuple[FloatArray, FloatArray]:
-        """Stacked canonical pointmaps and average confidences of all keyframes.
+        """Stacked canonical pointmaps and average confidences of the keyframes.
 
         Args:
             fusion: the ``mslam_ref.fusion`` module (for ``average_confidence``).
             K: (3, 3) intrinsics in calibrated mode: points are constrained to the known rays
                 (``mslam_ref.calib.constrain_points_to_ray``), as upstream's ``solve_GN_calib``.
             exported: the map's points (``Keyframe.X_map``) instead of ``state.X_canon``.
+            indices: (K',) the keyframes to stack, in that order (default: all).
 
         Returns:
-            X (K, H, W, 3) and C (K, H, W) = C / N.
+            X (K', H, W, 3) and C (K', H, W) = C / N.
         """
         H, W = self._kfs[0].shape
-        X = np.stack(
-            [(kf.X_map if exported else kf.state.X_canon).reshape(H, W, 3) for kf in self._kfs]
-        )
-        C = np.stack(
-            [np.asarray(fusion.average_confidence(kf.state)).reshape(H, W) for kf in self._kfs]
-        )
+        kfs = self._kfs if indices is None else [self._kfs[int(k)] for k in indices]
+        X = np.stack([(kf.X_map if exported else kf.state.X_canon).reshape(H, W, 3) for kf in kfs])
+        C = np.stack([np.asarray(fusion.average_confidence(kf.state)).reshape(H, W) for kf in kfs])
         if K is not None:
             from mslam_ref.calib import constrain_points_to_ray
 
