@@ -58,6 +58,19 @@ def test_guard_undoes_rising_cost_and_runaway_keyframes() -> None:
     assert "keyframe spacings" in guard_backend(T_old, far, (1.0, 0.5), cfg)
     far[3, 0] = np.inf
     assert "non-finite" in guard_backend(T_old, far, (1.0, 0.5), cfg)
+    # A rise of 0.15 % is undone but minor (within warn_cost_rise); a fivefold one is not.
+    slight = (1.0, 1.0015)
+    assert "cost rose" in guard_backend(T_old, T_old, slight, cfg)
+    assert guard_backend(T_old, T_old, slight, cfg, cfg.warn_cost_rise) is None
+    assert guard_backend(T_old, T_old, (1.0, 5.0), cfg, cfg.warn_cost_rise) is not None
+
+
+def test_a_minor_undone_solve_is_listed_but_not_warned() -> None:
+    minor = {"frame": -1, "kind": "solve", "reason": "backend undone: cost rose", "minor": True}
+    assert DivergenceMonitor(events=[minor]).warnings() == []
+    assert DivergenceMonitor(events=[{**minor, "minor": False}]).warnings() != []
+    report = divergence_report(DivergenceMonitor(events=[minor]), [], np.zeros((0, 8)), [])
+    assert report["plausible"] and report["divergence_events"] == [minor]
 
 
 def test_trajectory_warnings_flag_a_runaway_path() -> None:

@@ -256,10 +256,12 @@ class Backend:
         T_sub, info = self.kernels.backend.solve(T_WC[win.keyframes], graph, cfg)
         T_new = T_WC.copy()  # keyframes outside the window keep their poses
         T_new[win.keyframes] = np.asarray(T_sub, dtype=np.float64)
-        why = guard_backend(T_WC, T_new, tuple(info.costs), self.divergence.cfg)
+        costs, dcfg = tuple(info.costs), self.divergence.cfg
+        why = guard_backend(T_WC, T_new, costs, dcfg)
         if why is not None:  # keep the poses the solve started from (mslam.system.divergence)
+            minor = guard_backend(T_WC, T_new, costs, dcfg, dcfg.warn_cost_rise) is None
             self.divergence.events.append(
-                {"frame": -1, "kind": "solve", "reason": f"backend undone: {why}"}
+                {"frame": -1, "kind": "solve", "reason": f"backend undone: {why}", "minor": minor}
             )
             T_new = T_WC
         with self.lock:
