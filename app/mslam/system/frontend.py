@@ -184,10 +184,7 @@ class SlamSystem(ParallaxSteps):
             X, C = self.prior.mono(frame)
             p = self.prior.pair(frame, frame)
         k = self.backend.add_keyframe(frame, self.anchor, X, C, p.D_ii, p.Q_ii)
-        features = self.keyframes[k].features
-        if features is None:  # add_keyframe computes them
-            raise RuntimeError(f"keyframe {k}: added without retrieval features")
-        self.retrieval.update(features)
+        self.retrieval.update(self.keyframes[k].retrieval_features())
         self.T_WC_last = self.keyframes[k].T_WC.copy()
         self.record(frame, k, None, FrameStatus.KEYFRAME)
         self.mode = Mode.TRACKING

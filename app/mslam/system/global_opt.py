@@ -194,7 +194,7 @@ class Backend:
         """
         kf = self.keyframes[k]
         candidates = [k - 1] if k >= 1 else []
-        candidates += self.retrieval.update(kf.features)
+        candidates += self.retrieval.update(kf.retrieval_features())
         seen: list[int] = []
         for c in candidates:
             if c != k and c not in seen and self.in_map(c) and c < len(self.keyframes):

@@ -165,8 +165,8 @@ class FactorGraph:
         cols = slice(None) if pixels is None else pixels
         stack = lambda name: np.stack([getattr(e, name)[cols] for e in edges])
         ii, jj, idx, valid, Q = backend.directed_blocks(
-            [ends(e)[0] for e in edges],
-            [ends(e)[1] for e in edges],
+            np.array([ends(e)[0] for e in edges], np.int64),
+            np.array([ends(e)[1] for e in edges], np.int64),
             stack("idx_i2j"),
             stack("idx_j2i"),
             stack("valid_match_j"),

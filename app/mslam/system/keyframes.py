@@ -56,6 +56,20 @@ class Keyframe:
         if self.X_map is None:
             self.X_map = np.asarray(self.state.X_canon, dtype=np.float64).copy()
 
+    def retrieval_features(self) -> FloatArray:
+        """(nfeat, F) ``features``; a keyframe of the map always has them (``add_keyframe``
+        computes them), so their absence is a programming error, raised as one."""
+        if self.features is None:
+            raise RuntimeError(
+                f"the keyframe of frame {self.frame.index} has no retrieval features"
+            )
+        return self.features
+
+    def points(self, exported: bool = False) -> FloatArray:
+        """(N, 3) ``state.X_canon``, or with ``exported`` the map's points ``X_map``."""
+        X = self.X_map if exported else self.state.X_canon
+        return np.asarray(X if X is not None else self.state.X_canon, dtype=np.float64)
+
 
 class KeyframeStore:
     """Keyframes in creation order; grows one at a time (no preallocated buffer).
@@ -123,7 +137,7 @@ class KeyframeStore:
         """
         H, W = self._kfs[0].shape
         kfs = self._kfs if indices is None else [self._kfs[int(k)] for k in indices]
-        X = np.stack([(kf.X_map if exported else kf.state.X_canon).reshape(H, W, 3) for kf in kfs])
+        X = np.stack([kf.points(exported).reshape(H, W, 3) for kf in kfs])
         C = np.stack([np.asarray(fusion.average_confidence(kf.state)).reshape(H, W) for kf in kfs])
         if K is not None:
             from mslam_ref.calib import constrain_points_to_ray

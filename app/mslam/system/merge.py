@@ -154,12 +154,10 @@ class MapMerger:
 
     def candidates(self, backend: Backend, k: int, end: int) -> list[int]:
         """Keyframes ``0 .. end - 1`` that retrieval ranks best for keyframe ``k``."""
-        db, features = backend.retrieval.db, backend.keyframes[k].features
+        db = backend.retrieval.db
         if db is None or end <= 0:
             return []
-        if features is None:  # add_keyframe computes them
-            raise RuntimeError(f"keyframe {k}: no retrieval features")
-        scores = np.asarray(db.scores(features))[:end]
+        scores = np.asarray(db.scores(backend.keyframes[k].retrieval_features()))[:end]
         order = np.argsort(-scores, kind="stable")[: self.cfg.candidates]
         return [int(o) for o in order if scores[o] > backend.retrieval.cfg.min_thresh]
 

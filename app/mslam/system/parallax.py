@@ -223,10 +223,7 @@ class ParallaxSteps:
                 self.init_pending.append(frame)
             return FrameStatus.WAITING
         k = self.backend.add_keyframe(cand, self.anchor, p.X_ii, p.C_ii, p.D_ii, p.Q_ii)
-        features = self.backend.keyframes[k].features
-        if features is None:  # add_keyframe computes them
-            raise RuntimeError(f"keyframe {k}: added without retrieval features")
-        self.backend.retrieval.update(features)
+        self.backend.retrieval.update(self.backend.keyframes[k].retrieval_features())
         self.T_WC_last = self.backend.keyframes[k].T_WC.copy()
         self.record(cand, k, None, FrameStatus.KEYFRAME)
         self.mode = Mode.TRACKING
