@@ -193,3 +193,7 @@ EXPOSURE_ROUNDING_LEVELS = 2
 MERGED_KEYFRAME_M = 0.1
 #: ... the median over the second map's keyframes after the merge (measured 0.15 m)
 MERGED_MAP_MEDIAN_M = 0.3
+
+#: ATE RMSE of a ``synthetic:jump`` run (synthetic prior, Sim(3) aligned) as a share of the
+#: path length: the acceptance bound of a kidnapped camera relocalised onto the right keyframe.
+JUMP_ATE_PATH_FRACTION = 0.02
