@@ -176,8 +176,9 @@ assert np.mean((idx_r == idx_f) & (val_r == val_f)) > 0.999
 # The new view shares nothing with the last keyframe, so tracking fails (too few matches) and
 # the system goes to RELOC: each new frame queries the database (without being inserted); its
 # candidate edges are matched with the stricter match fraction 0.3, a failing candidate is
-# dropped, and the frame becomes a new keyframe if the best-ranked candidate passes. Its pose
-# is then the best accepted candidate's, refined by the global solve. (`synthetic:detour` is
+# dropped, and the frame becomes a new keyframe if any candidate passes (`reloc.strict: True`
+# would require the best-ranked one to). Its pose is then the best accepted candidate's,
+# refined by the global solve. (`synthetic:detour` is
 # the harder case: a detour through a part of the room never mapped, which no single-map
 # system can pose.)
 

@@ -91,10 +91,12 @@ class DatasetConfig:
 
 @dataclass(frozen=True)
 class RelocConfig:
-    """``reloc.*`` keys (docs/upstream.md §9): the stricter match fraction and all-or-nothing acceptance."""
+    """``reloc.*`` keys (docs/upstream.md §9, ``mslam.system.reloc``): the stricter match
+    fraction, and ``strict``: whether the best-ranked candidate must pass (False: any verified
+    candidate relocalises the frame; docs/system.md, "Relocalisation")."""
 
     min_match_frac: float = 0.3
-    strict: bool = True
+    strict: bool = False
 
 
 @dataclass(frozen=True)
