@@ -102,6 +102,18 @@ def test_a_cut_is_a_jump_unless_a_merge_placed_the_frames_after_it() -> None:
     )
 
 
+def test_a_camera_at_rest_first_does_not_shrink_the_median_step() -> None:
+    """30 frames at rest (0.3 mm jitter; most of the first quarter) before 120 frames of 6 mm
+    steps: a 5 cm step near the end is 9 median steps, no jump; a 2 m step is one."""
+    rng = np.random.default_rng(0)
+    x = np.r_[np.cumsum(rng.uniform(-3e-4, 3e-4, 30)), np.linspace(0, 0.72, 120)]
+    x[140:] += 0.05
+    T = np.stack([_pose(v) for v in x])
+    assert trajectory_warnings(T) == []
+    x[140:] += 2.0
+    assert any("jumps" in w for w in trajectory_warnings(np.stack([_pose(v) for v in x])))
+
+
 def test_trajectory_warnings_flag_an_orientation_that_jumps() -> None:
     """A camera turning 3.8° per frame about its centre (``synthetic:rotation:60``'s rate):
     no warning, with or without lost frames; frames of a keyframe 40° off, tracked in turns
