@@ -232,8 +232,8 @@ plt.show()
 
 # %% [markdown]
 # On the full 150-frame clip at 160x120 (measured 2026-11-26, benchmarks/RESULTS.md "Monocular
-# RGB on video nobody tuned to") the RGB-only map scores a chamfer of 15.1 cm with 0.3 % of its
-# points far (11.4 cm once registered by ICP), the RGB-D map 8.8 cm — and 1.5 cm once registered: the RGB-D map itself
+# RGB on unseen video: maps that rejoin") the RGB-only map scores a chamfer of 14.4 cm with 0.08 %
+# of its points far (9.4 cm once registered by ICP), the RGB-D map 8.8 cm — and 1.5 cm once registered: the RGB-D map itself
 # is tight, its trajectory alignment is not. How much of that is the alignment alone?
 # docs/evaluation.md moves the *true* cloud by the Sim(3) fitted to a noisy copy of the true
 # path: with a drift-shaped trajectory error of 1.6 cm (this clip's RGB-D ATE) a perfect map
