@@ -66,6 +66,7 @@ Public names, in reading order:
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -206,11 +207,12 @@ class TwoViewPrior:
     def K_for(self, frame: Frame) -> FloatArray:
         """Intrinsics at the frame's resolution (the focal guess when uncalibrated)."""
         H, W = frame.shape
-        if self.K is None:
+        if self.K is None or self.image_size is None:  # the constructor sets both or neither
             return focal_guess_intrinsics(W, H)
-        if (W, H) == tuple(self.image_size):
+        size = (int(self.image_size[0]), int(self.image_size[1]))
+        if (W, H) == size:
             return self.K
-        return scale_intrinsics(self.K, tuple(self.image_size), (W, H))
+        return scale_intrinsics(self.K, size, (W, H))
 
     def _cached(self, key: tuple, fn):
         return self.cache.get(key, fn)
@@ -317,13 +319,16 @@ class TwoViewPrior:
         rev = self._reverse(("flow", hash(frame_i.rgb.tobytes()), hash(frame_j.rgb.tobytes())))
         if rev is not None:
             return rev[1], rev[0], rev[2]
-        kp = [None, None]
+        kp: list[Callable[[], object] | None] = [None, None]
         if self.cfg.guide.enabled:
-            # Keypoints are computed (once per image) only when a pair needs the guide.
-            kp = [lambda f=f: self._cached(("sift", hash(f.rgb.tobytes())),
-                                           lambda: sift_keypoints(f.rgb, self.cfg.guide))
-                  for f in (frame_i, frame_j)]  # fmt: skip
-        return guided_flow(frame_i.rgb, frame_j.rgb, *kp, self.cfg.fb_px, self.cfg.guide)
+            kp = [self._keypoints(frame_i), self._keypoints(frame_j)]
+        return guided_flow(frame_i.rgb, frame_j.rgb, kp[0], kp[1], self.cfg.fb_px, self.cfg.guide)
+
+    def _keypoints(self, frame: Frame) -> Callable[[], object]:
+        """The frame's SIFT keypoints on demand: computed (once per image) only when a pair
+        needs the guide."""
+        key = lambda: ("sift", hash(frame.rgb.tobytes()))
+        return lambda: self._cached(key(), lambda: sift_keypoints(frame.rgb, self.cfg.guide))
 
     def _remember(self, frame: Frame, X: FloatArray, C: FloatArray) -> None:
         X = X / np.median(np.linalg.norm(X, axis=-1))

@@ -105,7 +105,7 @@ def sift_keypoints(rgb: np.ndarray, cfg: GuideConfig = GuideConfig()):
     f = max(1, int(np.ceil(cfg.detect_min_width / W)))
     if f > 1:
         grey = cv2.resize(grey, (W * f, H * f), interpolation=cv2.INTER_CUBIC)
-    det = cv2.SIFT_create(nfeatures=cfg.n_features, contrastThreshold=cfg.contrast_threshold)
+    det = cv2.SIFT.create(nfeatures=cfg.n_features, contrastThreshold=cfg.contrast_threshold)
     kps, desc = det.detectAndCompute(grey, None)
     if desc is None or len(kps) == 0:
         return np.zeros((0, 2)), None
@@ -201,9 +201,8 @@ def guided_flow(
     if not np.all(np.isfinite(H_ij)) or abs(np.linalg.det(H_ij)) < 1e-9:
         return F_ij, F_ji, False
     h, w = F_ij.shape[:2]
-    G_ij, G_ji = dense_flow(
-        rgb_i, rgb_j, homography_flow(H_ij, h, w), homography_flow(np.linalg.inv(H_ij), h, w)
-    )
+    H, H_inv = np.asarray(H_ij, np.float64), np.asarray(np.linalg.inv(H_ij), np.float64)
+    G_ij, G_ji = dense_flow(rgb_i, rgb_j, homography_flow(H, h, w), homography_flow(H_inv, h, w))
     if consistent_share(G_ij, G_ji, fb_px) > plain_share:
         return G_ij, G_ji, True
     inl = mask.reshape(-1).astype(bool)

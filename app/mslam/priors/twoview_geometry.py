@@ -114,9 +114,10 @@ def _dis_both_ways(
     initial flow; (H, W, 2) float64 each."""
     out = []
     for a, b, init in ((gi, gj, init_ij), (gj, gi, init_ji)):
-        dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
+        dis = cv2.DISOpticalFlow.create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
         if init is None:
-            out.append(dis.calc(a, b, None).astype(np.float64))
+            # OpenCV takes None for "no initial flow"; its type stubs do not say so.
+            out.append(dis.calc(a, b, None).astype(np.float64))  # type: ignore[call-overload]
         else:
             flow = np.array(init, dtype=np.float32, order="C")  # DIS refines it in place
             if flow.shape != (*gi.shape, 2):

@@ -244,7 +244,9 @@ class Tracker:
             X_kk, C_kk = sim3.act(T_CkCf, flat(p.X_ji)), flat(p.C_ji)
             state = self._fuse_fn(kf.state, X_kk, C_kk, self.fusion_cfg)
             # The map's positions: the same average without the filled points (same C, N).
-            map_state, X_map = without_filler(replace(kf.state, X_canon=kf.X_map), X_kk, C_kk)
+            map_state, X_map = without_filler(
+                replace(kf.state, X_canon=kf.points(exported=True)), X_kk, C_kk
+            )
             update = self.kernels.fusion.update_pointmap
             X_map = np.asarray(update(map_state, X_map, C_kk, self.fusion_cfg).X_canon)
             with self.lock:
