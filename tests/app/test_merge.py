@@ -14,6 +14,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from blind_prior import BlindPrior
 from tolerances import MERGED_KEYFRAME_M, MERGED_MAP_MEDIAN_M, SIM3_FIT
 
 from mslam.config import load_config
@@ -34,35 +35,13 @@ BEFORE_RETURN = 40  # frames of the loop that never come back to its start
 LOOP_LONG, BLIND_LONG = "synthetic:loop:64:96x72", range(12, 24)
 
 
-class _BlindPrior:
-    """Wraps a prior; pairs with a frame in ``blind`` have no confident point or descriptor."""
-
-    def __init__(self, prior, blind: range) -> None:
-        self._p, self._blind = prior, blind
-
-    def __getattr__(self, name):
-        return getattr(self._p, name)
-
-    def mono(self, frame):
-        X, C = self._p.mono(frame)
-        return X, (np.ones_like(C) if frame.index in self._blind else C)
-
-    def pair(self, frame_i, frame_j):
-        p = self._p.pair(frame_i, frame_j)
-        if frame_i.index not in self._blind and frame_j.index not in self._blind:
-            return p
-        one, z = np.ones_like, np.zeros_like
-        return type(p)(p.X_ii, one(p.C_ii), p.D_ii, z(p.Q_ii),
-                       p.X_ji, one(p.C_ji), p.D_ji, z(p.Q_ji))  # fmt: skip
-
-
 def _run(max_frames: int | None = None, loop: str = LOOP, blind: range = BLIND, overrides=()):
     import mslam_fast
 
     mslam_fast.init("cpu", "f64")
     cfg = load_config(None, [f"recovery.max_lost_frames={MAX_LOST}", *overrides])
     src = open_source(loop, cfg, max_frames=max_frames)
-    src.prior = _BlindPrior(src.prior, blind)
+    src.prior = BlindPrior(src.prior, blind)
     system, meta = run_slam(src, cfg, load_kernels("fast"))
     return system, summary_dict(system, meta, evaluate_run(system, src.sequence))
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from blind_prior import BlindPrior
 
 from mslam.config import load_config
 from mslam.kernels import load_kernels
@@ -26,29 +27,6 @@ LOOP = "synthetic:loop:48:64x48"
 BLIND = range(12, 22)  # frames the blind prior sees nothing in
 MAX_LOST = 4  # recovery.max_lost_frames in the blind run
 GROWTH = 1.03  # the growing prior's scale factor per frame
-
-
-class _BlindPrior:
-    """Wraps a prior; frames in ``blind`` get the lowest confidence (1) and no descriptor
-    quality (a covered lens): pairs that involve them cannot be matched."""
-
-    def __init__(self, prior, blind: range) -> None:
-        self._p, self._blind = prior, blind
-
-    def __getattr__(self, name):
-        return getattr(self._p, name)
-
-    def mono(self, frame):
-        X, C = self._p.mono(frame)
-        return X, (np.ones_like(C) if frame.index in self._blind else C)
-
-    def pair(self, frame_i, frame_j):
-        p = self._p.pair(frame_i, frame_j)
-        if frame_i.index not in self._blind and frame_j.index not in self._blind:
-            return p
-        one, z = np.ones_like, np.zeros_like
-        return type(p)(p.X_ii, one(p.C_ii), p.D_ii, z(p.Q_ii),
-                       p.X_ji, one(p.C_ji), p.D_ji, z(p.Q_ji))  # fmt: skip
 
 
 class _GrowingPrior:
@@ -97,7 +75,7 @@ def _run(wrap, overrides=(), observer=None):
 @pytest.fixture(scope="module")
 def blind_run():
     obs = _KeyframePosesAtNewMap()
-    system, s = _run(lambda p: _BlindPrior(p, BLIND), [f"recovery.max_lost_frames={MAX_LOST}"], obs)
+    system, s = _run(lambda p: BlindPrior(p, BLIND), [f"recovery.max_lost_frames={MAX_LOST}"], obs)
     return system, s, obs
 
 
