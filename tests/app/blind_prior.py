@@ -1,5 +1,5 @@
-"""A prior wrapper that makes some frames blind (a covered lens), shared by the recovery and
-map-merging tests."""
+"""A prior wrapper that makes some frames blind (a covered lens), shared by the recovery,
+map-merging and video-variety tests."""
 
 from __future__ import annotations
 

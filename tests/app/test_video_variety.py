@@ -16,6 +16,7 @@
 from __future__ import annotations
 
 import numpy as np
+from blind_prior import BlindPrior
 
 from mslam.system.divergence import DivergenceConfig, map_spread
 from mslam_ref.pointmap import backproject
@@ -120,32 +121,6 @@ DARK = range(24, 30)  # frames of the synthetic loop behind a covered lens
 MAX_LOST = 4  # recovery.max_lost_frames of that run
 
 
-class _CoveredPrior:
-    """Wraps a prior; pairs with a frame in ``dark`` get the lowest confidence (1) and no
-    descriptor quality, as a prior would give for a black image."""
-
-    def __init__(self, prior, dark: range) -> None:
-        self._p, self._dark = prior, dark
-
-    def __getattr__(self, name):
-        return getattr(self._p, name)
-
-    def mono(self, frame):
-        X, C = self._p.mono(frame)
-        return X, (np.ones_like(C) if frame.index in self._dark else C)
-
-    def pair(self, frame_i, frame_j):
-        import dataclasses
-
-        p = self._p.pair(frame_i, frame_j)
-        if frame_i.index not in self._dark and frame_j.index not in self._dark:
-            return p
-        one, z = np.ones_like, np.zeros_like
-        return dataclasses.replace(
-            p, C_ii=one(p.C_ii), C_ji=one(p.C_ji), Q_ii=z(p.Q_ii), Q_ji=z(p.Q_ji)
-        )
-
-
 def test_a_covered_lens_does_not_start_a_new_map() -> None:
     """Six black frames (sensor noise only) that nothing can be matched in: tracking is lost
     for all of them, more than ``recovery.max_lost_frames``, yet they are blank, so no new map
@@ -163,7 +138,7 @@ def test_a_covered_lens_does_not_start_a_new_map() -> None:
     cfg = load_config(None, [f"recovery.max_lost_frames={MAX_LOST}"])
     src = open_source("synthetic:loop:96:64x48", cfg)
     rng = np.random.default_rng(0)
-    system = SlamSystem(_CoveredPrior(src.prior, DARK), cfg, load_kernels("fast"), src.K)
+    system = SlamSystem(BlindPrior(src.prior, DARK), cfg, load_kernels("fast"), src.K)
     statuses = []
     for i in range(DARK.stop + 2 * MAX_LOST):
         f = src.sequence[i]

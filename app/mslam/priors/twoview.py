@@ -79,12 +79,12 @@ from mslam.priors.rgbd import FAILED_Q, fill_depth
 from mslam.priors.twoview_flow import GuideConfig, guided_flow, sift_keypoints
 from mslam.priors.twoview_geometry import (
     essential_pose,
+    flow_consistency,
     focal_guess_intrinsics,
     forward_backward_error,
     homography_parallax,
     refine_pose,
     reprojection_error,
-    symmetric_flow,
     triangulate_midpoint,
 )
 from mslam.priors.twoview_planar import choose_pose, pose_candidates
@@ -381,10 +381,10 @@ class TwoViewPrior:
         returns its pointmap in camera i (H, W, 3), confidence (H, W) and validity (H, W)."""
         cfg = self.cfg
         H, W = F_ab.shape[:2]
-        e_fb, inside = forward_backward_error(F_ab, F_ba)
+        e_fb, inside, F_sym = flow_consistency(F_ab, F_ba)
         u, v = np.meshgrid(np.arange(W, dtype=np.float64), np.arange(H, dtype=np.float64))
         uv_a = np.stack([u, v], -1)
-        uv_b = uv_a + symmetric_flow(F_ab, F_ba)  # both views: one correspondence per point
+        uv_b = uv_a + F_sym  # both views: one correspondence per point
         uv_i, uv_j = (uv_a, uv_b) if forward else (uv_b, uv_a)
         X_i, angle, ok = triangulate_midpoint(uv_i, uv_j, K, R, t)
         r = reprojection_error(X_i, uv_i, uv_j, K, R, t)

@@ -16,8 +16,8 @@ The maths of :mod:`mslam.priors.twoview`, image pair (i, j) with intrinsics K:
   rotation (a plane seen from two centres). Pure rotation and a tiny baseline give ~0 for both.
 
 Public names, in reading order:
-    focal_guess_intrinsics, dense_flow, forward_backward_error, symmetric_flow, essential_pose,
-    sampson_residuals, refine_pose, homography_parallax, triangulate_midpoint, reprojection_error
+    focal_guess_intrinsics, dense_flow, forward_backward_error, symmetric_flow, flow_consistency,
+    essential_pose, sampson_residuals, refine_pose, homography_parallax, triangulate_midpoint, reprojection_error
 """
 
 from __future__ import annotations
@@ -39,6 +39,7 @@ __all__ = [
     "reprojection_error",
     "sampson_residuals",
     "symmetric_flow",
+    "flow_consistency",
     "triangulate_midpoint",
 ]
 
@@ -132,42 +133,39 @@ def _grid(H: int, W: int) -> FloatArray:
 
 
 def forward_backward_error(F_ij: FloatArray, F_ji: FloatArray) -> tuple[FloatArray, np.ndarray]:
-    """Forward–backward consistency ``e = ‖F_ij(u) + F_ji(u + F_ij(u))‖`` (bilinear lookup).
-
-    Args:
-        F_ij, F_ji: (H, W, 2) flows.
-
-    Returns:
-        e: (H, W) pixels (``inf`` where ``u + F_ij(u)`` leaves image j);
-        inside: (H, W) bool, whether ``u + F_ij(u)`` lies in image j.
-    """
+    """Forward–backward consistency ``e = ‖F_ij(u) + F_ji(u + F_ij(u))‖`` (bilinear lookup)
+    of (H, W, 2) flows: ``e`` (H, W) in pixels (``inf`` where ``u + F_ij(u)`` leaves image j)
+    and ``inside`` (H, W) bool, whether ``u + F_ij(u)`` lies in image j."""
     back, inside = _back_flow(F_ij, F_ji)
-    e = np.linalg.norm(F_ij + back, axis=-1)
-    return np.where(inside, e, np.inf), inside
+    return _fb_error(F_ij, back, inside), inside
 
 
 def symmetric_flow(F_ij: FloatArray, F_ji: FloatArray) -> FloatArray:
-    """The mean of the forward flow and the reversed backward flow,
-    ``½ (F_ij(u) − F_ji(u + F_ij(u)))`` (bilinear lookup).
+    """(H, W, 2) float64: the mean of the forward flow and the reversed backward flow,
+    ``½ (F_ij(u) − F_ji(u + F_ij(u)))`` (bilinear lookup; ``F_ij`` where ``u + F_ij(u)``
+    leaves image j), from (H, W, 2) flows ``F_ij``, ``F_ji``.
 
-    The two pointmaps of a pair are triangulated from ``F_ij`` (pixels of i) and ``F_ji``
-    (pixels of j). Where the two flows disagree by ``e_fb`` pixels, the same scene point gets
-    two depths that differ by about ``e_fb / parallax``: several times the matching's
-    ``dist_thresh`` on pairs with ~1 px of parallax. Both views triangulated with their
-    symmetric flow use (to first order) the same correspondence for a point, and the mean of
-    two flow estimates is the less noisy one. On the 7-Scenes kitchen clip at JPEG quality 8
-    (160x120, 2026-11-26) the share of a tracking pair's matches whose two points agree within
-    ``dist_thresh`` went from 0.36-0.56 to 0.91-0.98 on pairs with a median triangulation
-    angle of 0.4-0.5°, and from 0.87-0.96 to 0.99-1.0 on the others.
+    Where the two flows disagree by ``e_fb`` pixels, the pointmaps triangulated from ``F_ij``
+    (pixels of i) and ``F_ji`` (pixels of j) give one scene point depths that differ by about
+    ``e_fb / parallax``. Both views triangulated along their symmetric flow use (to first
+    order) the same correspondence, and the mean of two flow estimates is the less noisy one
+    (measurements: docs/priors.md)."""
+    return flow_consistency(F_ij, F_ji)[2]
 
-    Args:
-        F_ij, F_ji: (H, W, 2) flows.
 
-    Returns:
-        (H, W, 2) float64; ``F_ij`` itself where ``u + F_ij(u)`` leaves image j.
-    """
+def flow_consistency(
+    F_ij: FloatArray, F_ji: FloatArray
+) -> tuple[FloatArray, np.ndarray, FloatArray]:
+    """:func:`forward_backward_error` ``(e, inside)`` and :func:`symmetric_flow` of one pair
+    from one lookup of ``F_ji(u + F_ij(u))``: (H, W), (H, W) bool, (H, W, 2)."""
     back, inside = _back_flow(F_ij, F_ji)
-    return np.where(inside[..., None], 0.5 * (F_ij - back), F_ij)
+    F_sym = np.where(inside[..., None], 0.5 * (F_ij - back), F_ij)
+    return _fb_error(F_ij, back, inside), inside, F_sym
+
+
+def _fb_error(F_ij: FloatArray, back: FloatArray, inside: np.ndarray) -> FloatArray:
+    """``‖F_ij + back‖`` (H, W), ``inf`` outside image j."""
+    return np.where(inside, np.linalg.norm(F_ij + back, axis=-1), np.inf)
 
 
 def _back_flow(F_ij: FloatArray, F_ji: FloatArray) -> tuple[FloatArray, np.ndarray]:
