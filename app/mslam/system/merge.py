@@ -109,6 +109,11 @@ def correction(c: Connection, store: KeyframeStore) -> FloatArray:
     return sim3.mul(sim3.mul(T_WCj, sim3.inv(c.T_CiCj)), sim3.inv(T_WCi))
 
 
+def _rotation_deg(T: FloatArray) -> float:
+    """Angle (degrees) of the rotation of an (8,) Sim(3) (its quaternion's ``qw``)."""
+    return float(np.degrees(2 * np.arccos(np.clip(abs(T[6]), 0.0, 1.0))))
+
+
 def _scene_depth(store: KeyframeStore, k: int) -> float:
     """Median distance of keyframe ``k``'s canonical points from its camera, in world units."""
     X = np.reshape(store[k].state.X_canon, (-1, 3))
@@ -119,7 +124,7 @@ def agree(a: Connection, b: Connection, store: KeyframeStore, cfg: MergeConfig) 
     """Whether two connections' corrections are one (module docstring, step 5)."""
     Sa, Sb = correction(a, store), correction(b, store)
     d = sim3.mul(sim3.inv(Sa), Sb)
-    rot_deg = float(np.degrees(2 * np.arccos(np.clip(abs(d[6]), 0.0, 1.0))))
+    rot_deg = _rotation_deg(d)
     ratio = max(Sa[7] / Sb[7], Sb[7] / Sa[7])
     depth = min(_scene_depth(store, a.edge.j), _scene_depth(store, b.edge.j))
     centres = np.stack([store[a.edge.i].T_WC[:3], store[b.edge.i].T_WC[:3]])
@@ -241,7 +246,7 @@ class MapMerger:
             moved = np.array([c for c in range(len(backend.keyframes)) if backend.in_map(c)])
             backend.keyframes.set_poses(sim3.mul(S, backend.keyframes.poses()[moved]), moved)
             backend.graph.edges.extend(c.edge for c in group)
-        rot = float(np.degrees(2 * np.arccos(np.clip(abs(S[6]), 0.0, 1.0))))
+        rot = _rotation_deg(S)
         recovery.merged({
             "into": into, "frame": int(backend.keyframes[k].frame.index), "keyframe": group[0].edge.i,
             "old_keyframe": group[0].edge.j, "connections": len(group), "scale": float(S[7]),
