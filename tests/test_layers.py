@@ -182,7 +182,7 @@ APP_LAYERS: tuple[tuple[str, ...], ...] = (
     ),
     ("mslam.conformance",),
     ("mslam.datasets", "mslam.priors", "mslam.map_metrics"),
-    ("mslam.config", "mslam.config_ranges"),
+    ("mslam.config", "mslam.config_ranges", "mslam.config_yaml"),
     ("mslam.system",),
     ("mslam.export",),
     ("mslam.api",),

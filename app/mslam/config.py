@@ -20,6 +20,8 @@ Rules:
   counts something, positive where it divides or scales) in ``mslam.config_ranges``; the
   error names the key and the ``--set`` or file it came from.
 
+Reading, merging and checking the files is :mod:`mslam.config_yaml`'s part.
+
 Public names, in reading order: SlamConfig, DatasetConfig, RelocConfig, load_config,
 parse_override, config_to_dict, CONFIG_DIR
 """
@@ -29,13 +31,24 @@ from __future__ import annotations
 import copy
 import dataclasses
 import importlib
-import re
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import yaml
+
+from mslam.config_yaml import (
+    CONFIG_DIR,
+    YamlLoader,
+    check_against,
+    coerce_numbers,
+    load_chain,
+    merge,
+    read_yaml,
+    resolve_path,
+    unknown_key,
+)
 
 __all__ = [
     "CONFIG_DIR",
@@ -46,27 +59,6 @@ __all__ = [
     "load_config",
     "parse_override",
 ]
-
-#: Folder of the packaged YAML files (``base.yaml``, ``calib.yaml``).
-CONFIG_DIR = Path(__file__).with_name("configs")
-
-
-class _Loader(yaml.SafeLoader):
-    """SafeLoader that reads ``1e-8`` (no dot) as a float, as upstream's resolver does."""
-
-
-_Loader.add_implicit_resolver(
-    "tag:yaml.org,2002:float",
-    re.compile(
-        r"""^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+]?[0-9]+)?
-        |[-+]?(?:[0-9][0-9_]*)(?:[eE][-+]?[0-9]+)
-        |\.[0-9_]+(?:[eE][-+][0-9]+)?
-        |[-+]?\.(?:inf|Inf|INF)
-        |\.(?:nan|NaN|NAN))$""",
-        re.X,
-    ),
-    list("-+0123456789."),
-)
 
 
 @dataclass(frozen=True)
@@ -199,107 +191,6 @@ class SlamConfig:
         return self._section_as(Mast3rConfig, "mast3r_prior")
 
 
-def _read_yaml(path: Path) -> dict[str, Any]:
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise ValueError(f"{path}: cannot read config file ({exc.strerror or exc})") from None
-    try:
-        data = yaml.load(text, Loader=_Loader)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f" line {mark.line + 1}" if mark is not None else ""
-        problem = " ".join(str(getattr(exc, "problem", None) or "").split())
-        raise ValueError(
-            f"{path}:{where} invalid YAML{': ' + problem if problem else ''}"
-        ) from None
-    if data is None:
-        return {}
-    if not isinstance(data, dict):
-        raise ValueError(
-            f"{path}: a config file must be a mapping of keys, got {type(data).__name__}"
-        )
-    return data
-
-
-def _merge(parent: dict[str, Any], child: Mapping[str, Any]) -> dict[str, Any]:
-    out = copy.deepcopy(parent)
-    for key, value in child.items():
-        if isinstance(value, Mapping) and isinstance(out.get(key), dict):
-            out[key] = _merge(out[key], value)
-        else:
-            out[key] = copy.deepcopy(value)
-    return out
-
-
-def _resolve_path(name: str, base_dir: Path) -> Path:
-    p = Path(name)
-    if p.is_absolute() and p.exists():
-        return p
-    for cand in (base_dir / p, CONFIG_DIR / p, CONFIG_DIR / f"{name}.yaml"):
-        if cand.is_file():
-            return cand
-    return base_dir / p
-
-
-def _load_chain(path: Path, seen: tuple[Path, ...]) -> tuple[dict[str, Any], list[str]]:
-    path = path.resolve()
-    if path in seen:
-        raise ValueError(f"{path}: 'inherit' cycle")
-    if not path.is_file():
-        raise ValueError(f"{path}: config file not found")
-    data = _read_yaml(path)
-    parent_name = data.pop("inherit", None)
-    if parent_name is None:
-        return data, [str(path)]
-    if not isinstance(parent_name, str):
-        raise ValueError(f"{path}: 'inherit' must be a file name")
-    parent, files = _load_chain(_resolve_path(parent_name, path.parent), (*seen, path))
-    return _merge(parent, data), [*files, str(path)]
-
-
-def _dotted_keys(schema: Mapping[str, Any], prefix: str = "") -> list[str]:
-    """Every key of ``schema`` as ``section.key`` (sections included)."""
-    out = []
-    for key, value in schema.items():
-        out.append(f"{prefix}{key}")
-        if isinstance(value, dict):
-            out += _dotted_keys(value, f"{prefix}{key}.")
-    return out
-
-
-def _unknown_key(where: str, dotted: str) -> ValueError:
-    """``unknown config key`` with the closest key of base.yaml, if one is close."""
-    import difflib
-
-    depth = dotted.count(".")
-    keys = [k for k in _dotted_keys(_read_yaml(CONFIG_DIR / "base.yaml")) if k.count(".") == depth]
-    by_lower = {k.lower(): k for k in keys}
-    close = difflib.get_close_matches(dotted.lower(), list(by_lower), n=1, cutoff=0.75)
-    hint = f"; did you mean {by_lower[close[0]]}?" if close else ""
-    return ValueError(f"{where}: unknown config key {dotted!r}{hint}")
-
-
-def _check_against(schema: Mapping[str, Any], data: Mapping[str, Any], where: str, prefix=""):
-    for key, value in data.items():
-        dotted = f"{prefix}{key}"
-        if key not in schema:
-            raise _unknown_key(where, dotted)
-        ref = schema[key]
-        if isinstance(ref, dict):
-            if not isinstance(value, Mapping):
-                raise ValueError(f"{where}: {dotted!r} must be a section (mapping)")
-            _check_against(ref, value, where, f"{dotted}.")
-        elif isinstance(ref, bool):
-            if not isinstance(value, bool):
-                raise ValueError(f"{where}: {dotted!r} must be true or false, got {value!r}")
-        elif isinstance(ref, int | float):
-            if isinstance(value, bool) or not isinstance(value, int | float):
-                raise ValueError(f"{where}: {dotted!r} must be a number, got {value!r}")
-        elif isinstance(ref, str) and not isinstance(value, str):
-            raise ValueError(f"{where}: {dotted!r} must be a string, got {value!r}")
-
-
 def parse_override(text: str) -> tuple[list[str], Any]:
     """Parse ``SECTION.KEY=VALUE`` into the key path and a YAML-typed value.
 
@@ -312,23 +203,10 @@ def parse_override(text: str) -> tuple[list[str], Any]:
     if not path:
         raise ValueError(f"--set {text!r}: empty key")
     try:
-        value = yaml.load(raw.strip(), Loader=_Loader) if raw.strip() else None
+        value = yaml.load(raw.strip(), Loader=YamlLoader) if raw.strip() else None
     except yaml.YAMLError:
         raise ValueError(f"--set {text!r}: value is not a YAML scalar") from None
     return path, value
-
-
-def _coerce_numbers(schema: Mapping[str, Any], data: dict[str, Any]) -> None:
-    """Ints where the schema has floats become floats (``sigma_dist: 10`` → 10.0)."""
-    for key, value in data.items():
-        ref = schema.get(key)
-        if isinstance(ref, dict) and isinstance(value, dict):
-            _coerce_numbers(ref, value)
-        elif isinstance(ref, float) and isinstance(value, int) and not isinstance(value, bool):
-            data[key] = float(value)
-        elif isinstance(ref, int) and not isinstance(ref, bool) and isinstance(value, float):
-            if value.is_integer():
-                data[key] = int(value)
 
 
 def load_config(path: str | Path | None = None, overrides: Iterable[str] = ()) -> SlamConfig:
@@ -349,14 +227,14 @@ def load_config(path: str | Path | None = None, overrides: Iterable[str] = ()) -
     """
     overrides = list(overrides)
     base_path = CONFIG_DIR / "base.yaml"
-    schema = _read_yaml(base_path)
+    schema = read_yaml(base_path)
     if path is None:
         data, files = copy.deepcopy(schema), [str(base_path)]
     else:
-        p = _resolve_path(str(path), Path.cwd())
-        data, files = _load_chain(p, ())
-        _check_against(schema, data, str(p))
-        data = _merge(schema, data)
+        p = resolve_path(str(path), Path.cwd())
+        data, files = load_chain(p, ())
+        check_against(schema, data, str(p))
+        data = merge(schema, data)
     set_by: dict[str, str] = {}
     for text in overrides:
         keys, value = parse_override(text)
@@ -364,13 +242,13 @@ def load_config(path: str | Path | None = None, overrides: Iterable[str] = ()) -
         node = data
         for k in keys[:-1]:
             if not isinstance(node.get(k), dict):
-                raise _unknown_key(f"--set {text!r}", ".".join(keys))
+                raise unknown_key(f"--set {text!r}", ".".join(keys))
             node = node[k]
         if keys[-1] not in node or isinstance(node[keys[-1]], dict):
-            raise _unknown_key(f"--set {text!r}", ".".join(keys))
+            raise unknown_key(f"--set {text!r}", ".".join(keys))
         node[keys[-1]] = value
-    _check_against(schema, data, "config overrides" if overrides else files[-1])
-    _coerce_numbers(schema, data)
+    check_against(schema, data, "config overrides" if overrides else files[-1])
+    coerce_numbers(schema, data)
     from mslam.config_ranges import check_ranges
 
     check_ranges(data, set_by, files[-1])  # every value against its stated range, one place

@@ -64,10 +64,10 @@ def test_config_file_value_names_the_file(tmp_path):
 
 
 def test_every_numeric_base_key_has_a_stated_range():
-    from mslam.config import CONFIG_DIR, _read_yaml
     from mslam.config_ranges import RANGES
+    from mslam.config_yaml import CONFIG_DIR, read_yaml
 
-    base = _read_yaml(CONFIG_DIR / "base.yaml")
+    base = read_yaml(CONFIG_DIR / "base.yaml")
     numeric = {
         f"{s}.{k}"
         for s, sec in base.items()
