@@ -18,6 +18,10 @@ prior accepts them) whose images are the clip's colour images changed in one way
 * ``res320`` — every frame at 320x240;
 * ``wide`` — the central 640x360 pixels (16:9);
 * ``phone`` — ``static``, ``portrait``, ``exposure``, ``blur`` and ``jpeg`` at once;
+* ``noise8``, ``noise15`` — Gaussian sensor noise of 8 and 15 grey levels per channel (fixed
+  seed per frame; a low-light phone or a noisy webcam);
+* ``gray`` — every frame converted to grey and written as three equal channels;
+* ``every3noise8`` — every third frame with the noise of ``noise8`` (fast motion and noise);
 * ``video`` — the clip as an MPEG-4 video file ``video/clip.mp4`` (the video loader; no
   ground truth).
 
@@ -65,6 +69,10 @@ BLUR_PX = 15
 JPEG_QUALITY = 8
 #: Period of the exposure swing of ``exposure`` (frames).
 EXPOSURE_PERIOD = 60
+#: Standard deviation of the added Gaussian noise per variant (grey levels per channel).
+NOISE_SIGMA = {"noise8": 8.0, "noise15": 15.0, "every3noise8": 8.0}
+#: Frame stride of ``every3noise8``.
+FAST_STRIDE = 3
 
 NAMES = (
     "exposure",
@@ -81,6 +89,10 @@ NAMES = (
     "res320",
     "wide",
     "phone",
+    "noise8",
+    "noise15",
+    "gray",
+    "every3noise8",
     "video",
 )
 
@@ -104,6 +116,8 @@ def _order(name: str, n: int) -> list[int]:
         return [i for i in range(n) if i not in DROPPED]
     if name == "cut":
         return list(range(n // 2)) + list(range(n - 1, n // 2 - 1, -1))
+    if name == "every3noise8":
+        return list(range(0, n, FAST_STRIDE))
     return list(range(n))
 
 
@@ -134,6 +148,14 @@ def _image_op(name: str, k: int) -> Callable[[np.ndarray], np.ndarray]:
             return cv2.imdecode(buf, cv2.IMREAD_COLOR)
 
         return jpeg
+    if name in NOISE_SIGMA:
+        rng = np.random.default_rng(k)
+        sigma = NOISE_SIGMA[name]
+        return lambda im: np.clip(
+            np.rint(im.astype(np.float32) + rng.normal(0.0, sigma, im.shape)), 0, 255
+        ).astype(np.uint8)
+    if name == "gray":
+        return lambda im: cv2.cvtColor(cv2.cvtColor(im, cv2.COLOR_BGR2GRAY), cv2.COLOR_GRAY2BGR)
     if name == "portrait":
         return lambda im: cv2.rotate(im, cv2.ROTATE_90_CLOCKWISE)
     if name == "mirror":
