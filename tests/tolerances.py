@@ -215,3 +215,6 @@ FAST_MOTION_ATE_PATH_FRACTION = 0.05
 #: measured 2026-11-27 at most 2.7° on ``synthetic:forward:12:96x72`` and 6.2° on
 #: ``synthetic:rotation:16:96x72`` (up to 20.7° turned per frame)
 FAST_MOTION_ORIENTATION_DEG = 10.0
+#: |log s| of a tracking solve whose only error is zero-mean noise in one side's distances
+#: (5000 points, relative sigma 0.3: sampling error ~0.005; the diluted side gives ~0.086)
+TRACKING_SCALE_BIAS_LOG = 0.03
