@@ -18,6 +18,15 @@ prior accepts them) whose images are the clip's colour images changed in one way
 * ``res320`` — every frame at 320x240;
 * ``wide`` — the central 640x360 pixels (16:9);
 * ``phone`` — ``static``, ``portrait``, ``exposure``, ``blur`` and ``jpeg`` at once;
+* ``noise8``, ``noise15`` — Gaussian sensor noise of 8 and 15 grey levels per channel (fixed
+  seed per frame; a low-light phone or a noisy webcam);
+* ``gray`` — every frame converted to grey and written as three equal channels;
+* ``every3noise8`` — every third frame with the noise of ``noise8`` (fast motion and noise);
+* ``noise15lo`` — Gaussian noise of 15 grey levels per pixel of a 160x120 image (constant over
+  4x4 blocks at 640x480): the noise of ``noise15`` at the resolution the two-view prior works
+  at, where area downsampling no longer averages it down to a quarter;
+* ``lowlight`` — a quarter of the exposure and the noise of ``noise8``, also per 4x4 block (a
+  dim room filmed by a phone);
 * ``video`` — the clip as an MPEG-4 video file ``video/clip.mp4`` (the video loader; no
   ground truth).
 
@@ -65,6 +74,15 @@ BLUR_PX = 15
 JPEG_QUALITY = 8
 #: Period of the exposure swing of ``exposure`` (frames).
 EXPOSURE_PERIOD = 60
+#: Standard deviation of the added Gaussian noise per variant (grey levels per channel).
+NOISE_SIGMA = {"noise8": 8.0, "noise15": 15.0, "every3noise8": 8.0, "noise15lo": 15.0}
+#: Side of the pixel blocks that share one noise value in ``noise15lo`` and ``lowlight``
+#: (640x480 to the 160x120 working resolution).
+NOISE_BLOCK = {"noise15lo": 4, "lowlight": 4}
+#: Exposure gain of ``lowlight``.
+LOWLIGHT_GAIN = 0.25
+#: Frame stride of ``every3noise8``.
+FAST_STRIDE = 3
 
 NAMES = (
     "exposure",
@@ -81,6 +99,12 @@ NAMES = (
     "res320",
     "wide",
     "phone",
+    "noise8",
+    "noise15",
+    "gray",
+    "every3noise8",
+    "noise15lo",
+    "lowlight",
     "video",
 )
 
@@ -104,6 +128,8 @@ def _order(name: str, n: int) -> list[int]:
         return [i for i in range(n) if i not in DROPPED]
     if name == "cut":
         return list(range(n // 2)) + list(range(n - 1, n // 2 - 1, -1))
+    if name == "every3noise8":
+        return list(range(0, n, FAST_STRIDE))
     return list(range(n))
 
 
@@ -134,6 +160,13 @@ def _image_op(name: str, k: int) -> Callable[[np.ndarray], np.ndarray]:
             return cv2.imdecode(buf, cv2.IMREAD_COLOR)
 
         return jpeg
+    if name == "lowlight":
+        noise = _noise(8.0, NOISE_BLOCK[name], k)
+        return lambda im: noise((im.astype(np.float32) * LOWLIGHT_GAIN).astype(np.uint8))
+    if name in NOISE_SIGMA:
+        return _noise(NOISE_SIGMA[name], NOISE_BLOCK.get(name, 1), k)
+    if name == "gray":
+        return lambda im: cv2.cvtColor(cv2.cvtColor(im, cv2.COLOR_BGR2GRAY), cv2.COLOR_GRAY2BGR)
     if name == "portrait":
         return lambda im: cv2.rotate(im, cv2.ROTATE_90_CLOCKWISE)
     if name == "mirror":
@@ -143,6 +176,20 @@ def _image_op(name: str, k: int) -> Callable[[np.ndarray], np.ndarray]:
     if name == "wide":
         return lambda im: im[(im.shape[0] - 360) // 2 :][:360]
     return lambda im: im
+
+
+def _noise(sigma: float, block: int, k: int) -> Callable[[np.ndarray], np.ndarray]:
+    """Add Gaussian noise of ``sigma`` grey levels per channel, one value per ``block`` x
+    ``block`` pixels, seeded by the written image's number ``k``."""
+    rng = np.random.default_rng(k)
+
+    def noisy(im: np.ndarray) -> np.ndarray:
+        H, W, ch = im.shape
+        n = rng.normal(0.0, sigma, (-(-H // block), -(-W // block), ch)).astype(np.float32)
+        n = np.repeat(np.repeat(n, block, axis=0), block, axis=1)[:H, :W]
+        return np.clip(np.rint(im.astype(np.float32) + n), 0, 255).astype(np.uint8)
+
+    return noisy
 
 
 def _pose(name: str, M: np.ndarray) -> np.ndarray:

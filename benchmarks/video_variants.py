@@ -7,6 +7,9 @@ colour images in another order, with fresh timestamps at 30 Hz:
 * ``fwd`` — the clip as it is;
 * ``rev`` — played backwards;
 * ``every2`` — every second frame (twice the motion per frame);
+* ``every3``, ``every4`` — every third, every fourth frame (fast motion: three and four times
+  the baseline and rotation between frames, as in a hand-held video at 10 or 7.5 Hz);
+* ``every3rev`` — every third frame, played backwards;
 * ``pingpong`` — forward then backward (``2N - 1`` frames, a closed loop);
 * ``crop`` — the central 480x360 pixels of each image, written as PNG (other field of view
   and resolution; ``calib.yaml`` shifted accordingly);
@@ -53,6 +56,9 @@ def _orders(n: int) -> dict[str, list[int]]:
         "fwd": list(range(n)),
         "rev": list(range(n - 1, -1, -1)),
         "every2": list(range(0, n, 2)),
+        "every3": list(range(0, n, 3)),
+        "every4": list(range(0, n, 4)),
+        "every3rev": list(range(n - 1, -1, -3)),
         "pingpong": list(range(n)) + list(range(n - 2, -1, -1)),
         "pingpong2": _passes(n, [1, 1, 1, 1]),
         "loop3": _passes(n, [1] * 6),

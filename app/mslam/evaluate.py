@@ -37,6 +37,12 @@ __all__ = ["AteResult", "associate", "ate", "reconstruction_metrics", "umeyama"]
 #: Relative rank tolerance of :func:`umeyama`: the second singular value of the (unit-scaled)
 #: cross-covariance must exceed this fraction of the first (collinear or static otherwise).
 _REL_RANK_TOL = 1e-10
+#: Relative spread tolerance of :func:`umeyama`: each point set's RMS distance from its
+#: centroid must exceed this fraction of its largest coordinate. Rounding leaves a static set
+#: (a camera that only rotates) a spread of ~1e-16 of its magnitude, which the rank test alone
+#: compares with itself and accepts: the ground truth of ``synthetic:rotation:30`` then aligns
+#: with scale ~1e-31 and an ATE of ~1e-16 m (measured 2026-11-27).
+_REL_SPREAD_TOL = 1e-12
 
 #: Alignment modes of :func:`ate` (evo: ``-as``, ``-a``, no flag).
 ALIGN_MODES = ("sim3", "se3", "none")
@@ -152,8 +158,9 @@ def umeyama(src: Any, dst: Any, with_scale: bool = True) -> tuple[FloatArray, Fl
         R (3, 3), t (3,), s.
 
     Raises:
-        ValueError: on mismatched shapes or a degenerate configuration (covariance rank < 2,
-            e.g. fewer than 3 points or all points collinear), as evo refuses to align.
+        ValueError: on mismatched shapes or a degenerate configuration (either set without
+            spread, e.g. a camera that only rotates; covariance rank < 2, e.g. fewer than 3
+            points or all points collinear), as evo refuses to align.
     """
     src = as_float_array(src, "src", 3)
     dst = as_float_array(dst, "dst", 3)
@@ -170,6 +177,13 @@ def umeyama(src: Any, dst: Any, with_scale: bool = True) -> tuple[FloatArray, Fl
     mu_s, mu_d = src_n.mean(axis=0), dst_n.mean(axis=0)
     sc, dc = src_n - mu_s, dst_n - mu_d
     var_s = float(np.mean(np.sum(sc * sc, axis=1)))
+    var_d = float(np.mean(np.sum(dc * dc, axis=1)))
+    for name, var in (("src", var_s), ("dst", var_d)):
+        if not var > _REL_SPREAD_TOL**2:
+            raise ValueError(
+                f"{name}: degenerate point configuration ({n} points without spread relative "
+                "to their magnitude: a static camera); Umeyama alignment is not possible"
+            )
     cov = dc.T @ sc / n
     U, D, Vt = np.linalg.svd(cov)
     if not (D[0] > 0 and D[1] > _REL_RANK_TOL * D[0]):

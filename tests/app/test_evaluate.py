@@ -149,6 +149,24 @@ def test_umeyama_degenerate_raises() -> None:
         ev.umeyama(np.zeros((3, 2)), np.zeros((3, 2)))
 
 
+def test_umeyama_refuses_a_static_set_whose_mean_rounds() -> None:
+    """A camera that only rotates: 30 equal positions whose mean differs from them by rounding
+    (~1e-16). The ground truth has no spread, so no scale or ATE exists; either side static is
+    refused, while the same set moving by a micrometre still aligns."""
+    static = np.tile([0.3, -0.2, 1.4], (30, 1))
+    assert np.any(static.mean(axis=0) != static[0])  # the rounding the check must see through
+    moving = np.random.default_rng(0).normal(0.0, 0.1, (30, 3))
+    with pytest.raises(ValueError, match="dst: degenerate"):
+        ev.umeyama(moving, static)
+    with pytest.raises(ValueError, match="src: degenerate"):
+        ev.umeyama(static, moving)
+    t = np.arange(30) / 30.0
+    with pytest.raises(ValueError, match="degenerate"):
+        ev.ate(t, moving, t, static, align="sim3")
+    _, _, s = ev.umeyama(moving, static + 1e-6 * moving)
+    assert np.isfinite(s) and s > 0
+
+
 # ---- association (evo's matching_time_indices as driven by associate_trajectories) ----
 
 
