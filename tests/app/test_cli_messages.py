@@ -151,3 +151,11 @@ def test_summary_says_what_the_edge_counts_are(tmp_path, capsys):
     assert main(["run", "synthetic:loop:8:32x24", "--out", str(out), "--kernels", "ref"]) == 0
     err = capsys.readouterr().err
     assert "between non-consecutive keyframes found by retrieval" in err
+
+
+def test_plausible_line_says_when_the_ate_was_refused():
+    from mslam.commands.run import _checked
+
+    refused = {"prior": "twoview", "evaluation_error": "ATE not computed: a static camera"}
+    assert "ATE not computed" in _checked(refused) and "no ground truth" not in _checked(refused)
+    assert "no ground truth" in _checked({"prior": "twoview"})

@@ -209,7 +209,8 @@ def _checked(s: dict) -> str:
     from mslam.system.health import METRIC_PRIORS
 
     if "ate_rmse" not in s:
-        return "posed fraction checked; scale and accuracy not checked: no ground truth"
+        why = "ATE not computed" if s.get("evaluation_error") else "no ground truth"
+        return f"posed fraction checked; scale and accuracy not checked: {why}"
     if s["prior"] not in METRIC_PRIORS:
         return f"posed fraction checked; scale not checked: the {s['prior']} prior is not metric"
     return "posed fraction and aligned scale within limits"
