@@ -8,7 +8,10 @@ noise in a regressor (regression dilution: relative noise sigma 0.3 gives
 keyframe's a fusion of many, so each tracked frame and each keyframe made from one sits too
 close; on the kitchen clip with noise of 15 grey levels per pixel at 160x120 the median of
 ``log(‖X_k‖ / ‖T_CkCf X_f‖)`` after a solve was +0.11 (+0.04 without noise) and the map's
-scale shrank 7-fold over 8 keyframes (2026-11-27).
+scale shrank 7-fold over 8 keyframes (2026-11-27). A log-distance residual,
+``log‖X_k‖ − log‖T_CkCf X_f‖``, is no cure: with this additive noise it gives
+``|log s| = 0.050`` whichever side is noisy, and on that clip it brought the median to −0.005
+while the map still shrank 10.5-fold (docs/priors.md).
 """
 
 from __future__ import annotations
