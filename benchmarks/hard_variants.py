@@ -25,6 +25,7 @@ prior accepts them) whose images are the clip's colour images changed in one way
 * ``noise15lo`` — Gaussian noise of 15 grey levels per pixel of a 160x120 image (constant over
   4x4 blocks at 640x480): the noise of ``noise15`` at the resolution the two-view prior works
   at, where area downsampling no longer averages it down to a quarter;
+* ``noise30lo`` — the same with 30 grey levels (a very noisy sensor at the working resolution);
 * ``lowlight`` — a quarter of the exposure and the noise of ``noise8``, also per 4x4 block (a
   dim room filmed by a phone);
 * ``video`` — the clip as an MPEG-4 video file ``video/clip.mp4`` (the video loader; no
@@ -75,10 +76,17 @@ JPEG_QUALITY = 8
 #: Period of the exposure swing of ``exposure`` (frames).
 EXPOSURE_PERIOD = 60
 #: Standard deviation of the added Gaussian noise per variant (grey levels per channel).
-NOISE_SIGMA = {"noise8": 8.0, "noise15": 15.0, "every3noise8": 8.0, "noise15lo": 15.0}
-#: Side of the pixel blocks that share one noise value in ``noise15lo`` and ``lowlight``
+NOISE_SIGMA = {
+    "noise8": 8.0,
+    "noise15": 15.0,
+    "every3noise8": 8.0,
+    "noise15lo": 15.0,
+    "noise30lo": 30.0,
+}
+#: Side of the pixel blocks that share one noise value in ``noise15lo``, ``noise30lo`` and
+#: ``lowlight``
 #: (640x480 to the 160x120 working resolution).
-NOISE_BLOCK = {"noise15lo": 4, "lowlight": 4}
+NOISE_BLOCK = {"noise15lo": 4, "noise30lo": 4, "lowlight": 4}
 #: Exposure gain of ``lowlight``.
 LOWLIGHT_GAIN = 0.25
 #: Frame stride of ``every3noise8``.
@@ -104,6 +112,7 @@ NAMES = (
     "gray",
     "every3noise8",
     "noise15lo",
+    "noise30lo",
     "lowlight",
     "video",
 )

@@ -10,11 +10,12 @@ summary:
 * :func:`map_spread` watches one map's keyframes for a map that spreads without bound while
   each step looks plausible (a slow runaway): the keyframes' Sim(3) scale moving steadily one
   way over the last ``spread_window`` keyframes (net log change at least ``min_drift_trend``
-  of the summed absolute log changes) by a factor beyond ``max_scale_drift``, once the part
-  that the keyframes' motion along their optical axes explains is taken out (a prior that
-  normalises its pointmaps, as MASt3R and the two-view prior do, shrinks the scale of a camera
-  walking towards a wall: the scene's distance falls by the distance walked), or the recent
-  keyframe spacing grown beyond ``max_spacing_growth`` times the map's first spacings.
+  of the summed absolute log changes) by a factor beyond ``max_scale_drift``, or by a factor
+  beyond ``max_uneven_drift`` however unevenly, once the part that the keyframes' motion along
+  their optical axes explains is taken out (a prior that normalises its pointmaps, as MASt3R
+  and the two-view prior do, shrinks the scale of a camera walking towards a wall: the scene's
+  distance falls by the distance walked), or the recent keyframe spacing grown beyond
+  ``max_spacing_growth`` times the map's first spacings.
 * :func:`trajectory_warnings` checks the final per-frame trajectory (non-finite poses, jumps
   far beyond its median step, a spread of Sim(3) scales far beyond its path, orientation jumps
   through :func:`mslam.system.turns.turn_warnings`), for the summary's ``warnings``.
@@ -69,6 +70,14 @@ class DivergenceConfig:
         max_scale_drift: their scale moving by more than this factor in all, ...
         min_drift_trend: ... with the net change at least this share of the summed absolute
             changes (1: every step the same way), is a drift.
+        max_uneven_drift: their scale moving by more than this factor in all is a drift however
+            unevenly it moved. Largest net change not explained by the motion, over every
+            check of a run (RGB-only, 7-Scenes clip, 2026-11-27): on runs with ATE at most
+            4.8 cm, a factor 8.1 (phone-like variant; JPEG 3.9, exposure 2.6, forward 1.2, the
+            900-frame loop 1.3); under Gaussian noise of 30 grey levels per pixel at the
+            160x120 working resolution (ATE 12.8 cm), 126 with 72 % of the total change net,
+            which the steady test passes. 25 sits a factor 3 above the first and 5 below the
+            second.
         max_spacing_growth: recent median keyframe spacing beyond this many times the map's
             first median spacing is a spreading map.
         min_jump_scale_frac: a step shorter than this share of the Sim(3) scale (the last
@@ -92,6 +101,7 @@ class DivergenceConfig:
     spread_window: int = 8
     max_scale_drift: float = 2.0
     min_drift_trend: float = 0.8
+    max_uneven_drift: float = 25.0
     max_spacing_growth: float = 25.0
     min_jump_scale_frac: float = 0.05
     turn: TurnConfig = field(default_factory=TurnConfig)
@@ -161,7 +171,8 @@ def map_spread(
     """Why keyframe poses ``T_kf`` (K, 8) of one map, in creation order, look like a map that
     spreads without bound, or None (module docstring: a steady Sim(3) scale drift over the
     last ``spread_window`` keyframes that the keyframes' motion towards or away from the scene
-    does not explain, or keyframe spacing grown ``max_spacing_growth``-fold).
+    does not explain, or an uneven one beyond ``max_uneven_drift``, or keyframe spacing grown
+    ``max_spacing_growth``-fold).
 
     ``depth`` (K,): the median distance of each keyframe's canonical points to its camera.
     With it, the part of the scale change that the camera's motion along its optical axis
@@ -180,12 +191,14 @@ def map_spread(
             # Motion only explains a change the same way as the observed one, and at most all.
             net -= float(np.clip(_explained_log_change(T[-w - 1 :], m), min(net, 0), max(net, 0)))
     drift = float(np.exp(abs(net)))
-    if trend >= cfg.min_drift_trend and drift > cfg.max_scale_drift:
+    steady = trend >= cfg.min_drift_trend
+    if drift > cfg.max_scale_drift and (steady or drift > cfg.max_uneven_drift):
         way = "grew" if net > 0 else "shrank"
         return (
             f"the keyframes' Sim(3) scale {way} by a factor {drift:.3g} over the last {w} "
-            f"keyframes, steadily (net change {100 * trend:.0f} % of the total change), "
-            "beyond what their motion towards or away from the scene explains"
+            f"keyframes, {'steadily' if steady else 'unevenly'} (net change "
+            f"{100 * trend:.0f} % of the total change), beyond what their motion towards or "
+            "away from the scene explains"
         )
     steps = np.linalg.norm(np.diff(T[:, :3], axis=0), axis=1)
     first, recent = float(np.median(steps[:w])), float(np.median(steps[-w:]))
