@@ -57,10 +57,18 @@ class _LoseTracking:
             system.lose_tracking()
 
 
-def _angle_deg(R_a: np.ndarray, R_b: np.ndarray) -> np.ndarray:
+def angle_deg(R_a: np.ndarray, R_b: np.ndarray) -> np.ndarray:
     """Angle of ``R_a^T R_b`` for (N, 3, 3) stacks, degrees (N,)."""
     cos = (np.einsum("nij,nij->n", R_a, R_b) - 1) / 2  # trace(R_a^T R_b)
     return np.degrees(np.arccos(np.clip(cos, -1, 1)))
+
+
+def orientation_errors_deg(R_est: np.ndarray, R_gt: np.ndarray) -> np.ndarray:
+    """(N,) error of each orientation relative to the first, estimate (N, 3, 3) against
+    truth (N, 3, 3), degrees."""
+    rel_est = np.einsum("ji,njk->nik", R_est[0], R_est)
+    rel_gt = np.einsum("ji,njk->nik", R_gt[0], R_gt)
+    return angle_deg(rel_est, rel_gt)
 
 
 def run_rotation() -> RotationRun:
@@ -78,13 +86,10 @@ def run_rotation() -> RotationRun:
     system, _ = run_slam(src, cfg, load_kernels("fast"), observer=observer)
     idx, _, T = system.frame_poses()
     R_true = so3.to_matrix(np.asarray(src.sequence.T_WC)[:, 3:7])
-    R_est, R_gt = so3.to_matrix(T[:, 3:7]), R_true[idx]
-    rel_est = np.einsum("ji,njk->nik", R_est[0], R_est)
-    rel_gt = np.einsum("ji,njk->nik", R_gt[0], R_gt)
     return RotationRun(
         system=system,
         idx=idx,
-        err_deg=_angle_deg(rel_est, rel_gt),
+        err_deg=orientation_errors_deg(so3.to_matrix(T[:, 3:7]), R_true[idx]),
         status={p.index: p.status for p in system.poses},
-        turned_deg=float(_angle_deg(R_true[:-1], R_true[1:]).sum()),
+        turned_deg=float(angle_deg(R_true[:-1], R_true[1:]).sum()),
     )

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from rotation_scenario import angle_deg, orientation_errors_deg
 from tolerances import (
     FAST_MOTION_ATE_PATH_FRACTION,
     FAST_MOTION_MIN_POSED,
@@ -27,12 +28,6 @@ ROTATION = "synthetic:rotation:16:96x72"
 #: the premise: the largest step between consecutive frames is at least this (metres, degrees)
 FORWARD_STEP_M = 0.25
 ROTATION_STEP_DEG = 15.0
-
-
-def _angle_deg(R_a: np.ndarray, R_b: np.ndarray) -> np.ndarray:
-    """Angle of ``R_a^T R_b`` for (N, 3, 3) stacks, degrees (N,)."""
-    cos = (np.einsum("nij,nij->n", R_a, R_b) - 1) / 2
-    return np.degrees(np.arccos(np.clip(cos, -1, 1)))
 
 
 def _run(source: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -56,14 +51,6 @@ def _run(source: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, n
     return idx, ts, T, gt, np.asarray(src.sequence.timestamps, np.float64)
 
 
-def _orientation_errors_deg(idx: np.ndarray, T: np.ndarray, gt: np.ndarray) -> np.ndarray:
-    """(N,) orientation error of each posed frame relative to the first posed frame, degrees."""
-    R_est, R_gt = so3.to_matrix(T[:, 3:7]), so3.to_matrix(gt[idx, 3:7])
-    rel_est = np.einsum("ji,njk->nik", R_est[0], R_est)
-    rel_gt = np.einsum("ji,njk->nik", R_gt[0], R_gt)
-    return _angle_deg(rel_est, rel_gt)
-
-
 @pytest.mark.parametrize("source", [FORWARD, ROTATION])
 def test_fast_motion_is_posed_with_bounded_error(source: str) -> None:
     idx, ts, T, gt, gt_ts = _run(source)
@@ -72,10 +59,11 @@ def test_fast_motion_is_posed_with_bounded_error(source: str) -> None:
     if source == FORWARD:
         assert steps_m.max() >= FORWARD_STEP_M
     else:
-        assert _angle_deg(R_true[:-1], R_true[1:]).max() >= ROTATION_STEP_DEG
+        assert angle_deg(R_true[:-1], R_true[1:]).max() >= ROTATION_STEP_DEG
     assert len(idx) >= FAST_MOTION_MIN_POSED * len(gt)
     assert np.all(np.isfinite(T))
-    assert _orientation_errors_deg(idx, T, gt).max() <= FAST_MOTION_ORIENTATION_DEG
+    err_deg = orientation_errors_deg(so3.to_matrix(T[:, 3:7]), R_true[idx])
+    assert err_deg.max() <= FAST_MOTION_ORIENTATION_DEG
     if source == FORWARD:  # a pure rotation has no path to align (evaluate.umeyama refuses it)
         res = evaluate.ate(ts, T, gt_ts, gt, align="sim3")
         assert res.rmse <= FAST_MOTION_ATE_PATH_FRACTION * steps_m.sum()

@@ -15,12 +15,12 @@ top-down in :meth:`SlamSystem.step`:
   new-keyframe test). Too few matches or a failed solve switch to RELOC. When the pair with the
   last keyframe is degenerate (a prior that reports ``last_status``, e.g. too little parallax
   just after a new keyframe), the frame is tracked against the keyframe before it instead, and
-  never becomes a keyframe itself; when the pair lacked parallax, the frame is then recorded at
-  the last keyframe's centre with the tracked orientation (``ROTATION``,
-  :meth:`SlamSystem.record_near_keyframe`); if that fails too and the pair with the last keyframe lacked
-  parallax, the camera is near that keyframe, and the frame gets a rotation with zero
-  translation (``ROTATION``, nothing fused, no keyframe asked for; :mod:`mslam.system.parallax`
-  says when a pair lacks parallax). When the prior reports the pair with the last
+  never becomes a keyframe itself. When the pair with the last keyframe lacked parallax, the
+  camera is near that keyframe: a frame tracked against the one before is recorded at the last
+  keyframe's centre with the tracked orientation (:meth:`SlamSystem.record_near_keyframe`), and
+  a frame whose fallback fails too gets the pair's rotation with zero translation (both
+  ``ROTATION``; nothing fused, no keyframe asked for; :mod:`mslam.system.parallax` says when a
+  pair lacks parallax). When the prior reports the pair with the last
   keyframe as having too few correspondences (``last_status == "few_inliers"``: the frame is
   too far from it), or the rotation of a frame without parallax cannot be solved, the last
   tracked frame is made a keyframe first (late) and the frame tracked against it. A new keyframe runs the backend (:class:`~mslam.system.global_opt.Backend`)
@@ -56,7 +56,7 @@ from mslam.system.global_opt import Backend
 from mslam.system.graph import FactorGraph
 from mslam.system.keyframes import KeyframeStore
 from mslam.system.merge import MapMerger
-from mslam.system.parallax import ParallaxSteps, TrackedFrame
+from mslam.system.parallax import ParallaxSteps, TrackedFrame, rotation_pose
 from mslam.system.recovery import Recovery, RecoveryConfig, frame_contrast
 from mslam.system.reloc import relocalise
 from mslam.system.retrieval_features import RetrievalIndex
@@ -272,7 +272,7 @@ class SlamSystem(ParallaxSteps):
         """
         last = len(self.keyframes) - 1
         q = sim3.mul(sim3.inv(self.keyframes[last].T_WC), T_WC)[3:7]
-        self.record(frame, last, np.concatenate([np.zeros(3), q, [1.0]]), FrameStatus.ROTATION)
+        self.record(frame, last, rotation_pose(q), FrameStatus.ROTATION)
         return FrameStatus.ROTATION
 
     def make_keyframe(self, frame: Frame, T_WC: FloatArray, p: PairPrediction) -> int:

@@ -37,7 +37,7 @@ pairs without parallax apart:
   (:meth:`ParallaxSteps.place_relocalised`).
 
 Public names, in reading order:
-    prior_status, parallax_px, rotated_pointmap, KeyframePair, TrackedFrame,
+    prior_status, parallax_px, rotation_pose, rotated_pointmap, KeyframePair, TrackedFrame,
     ParallaxSteps
 """
 
@@ -65,6 +65,7 @@ __all__ = [
     "parallax_px",
     "prior_status",
     "rotated_pointmap",
+    "rotation_pose",
 ]
 
 #: Default of ``tracking.min_pair_parallax_px`` (module docstring): about twice the median
@@ -120,6 +121,12 @@ def parallax_px(angle_deg: float, X: FloatArray, focal_px: float | None = None) 
         fx, fy, _, _ = pinhole_fit(X)
         focal_px = 0.5 * (abs(fx) + abs(fy))
     return float(focal_px) * float(np.radians(angle_deg))
+
+
+def rotation_pose(q: FloatArray) -> FloatArray:
+    """(8,) Sim(3) ``(0, q, 1)`` of a camera turned by unit quaternion ``q`` (4,) about the
+    centre it is posed against: no translation, unit scale."""
+    return np.concatenate([np.zeros(3), np.asarray(q, np.float64), [1.0]])
 
 
 def rotated_pointmap(
@@ -274,7 +281,7 @@ class ParallaxSteps:
             if res is None:
                 return None
             q = np.asarray(res.T_CkCf[3:7], np.float64)
-        T_CkCf = np.concatenate([np.zeros(3), q, [1.0]])
+        T_CkCf = rotation_pose(q)
         self.T_WC_last = sim3.mul(kf.T_WC, T_CkCf)
         self.last_tracked = TrackedFrame(
             frame, self.T_WC_last, pair.p, pair.kf_idx, so3.to_matrix(q)
@@ -348,7 +355,7 @@ class ParallaxSteps:
                 so3.to_matrix(q),
                 np.asarray(p.X_ii, np.float64),
             )
-            T_WC = sim3.mul(ref.T_WC, np.concatenate([np.zeros(3), q, [1.0]]))
+            T_WC = sim3.mul(ref.T_WC, rotation_pose(q))
         state = fusion.init_pointmap(X.reshape(-1, 3), C.reshape(-1), self.backend.fusion_cfg)
         with self.backend.lock:
             kf.state, kf.X_map = state, np.asarray(state.X_canon, np.float64).copy()
