@@ -148,7 +148,8 @@ def main() -> None:
     print(text)
     name = f"profile-{args.long_side}-{args.frames or 'all'}-{args.kernels}{prec.split()[-1] if prec else ''}"
     name += "-cuda" if args.arch == "cuda" else ""
-    write_section(name, f"Stage profile, {r['size']}, {args.kernels} kernels", text)
+    where = " on CUDA" if args.arch == "cuda" else ""
+    write_section(name, f"Stage profile, {r['size']}, {args.kernels} kernels{where}", text)
 
 
 if __name__ == "__main__":
