@@ -7,7 +7,10 @@ EuRoC ground-truth csv; the format is detected from the content (``mslam.formats
 TUM/EuRoC pairs are associated by timestamp as evo does (nearest stamp within ``--max-diff``);
 KITTI files have no stamps, so they are associated by index and need equal lengths (evo's
 ``kitti`` mode). Prints one JSON object: ``ate_rmse``, ``ate_mean``, ``ate_median``, ``ate_max``,
-``scale``, ``matched``, ``n_est``, ``align``, ``max_diff``. A position coordinate beyond
+``scale``, ``matched``, ``n_est``, ``align``, ``max_diff``, and where both files carry
+orientations the rotation figures of :mod:`mslam.rotation_metrics` (``rotation_gain``: 1 when
+the estimate turns as much as the camera, ``rotation_error_median_deg`` / ``_max_deg``: the
+relative rotation error over ``rotation_lag_s``). A position coordinate beyond
 :data:`MAX_ABS_COORDINATE` is refused (one line, exit 2).
 
 Equivalent evo command: ``evo_ape tum REFERENCE ESTIMATE -as`` (``--align sim3``, the paper's
@@ -125,6 +128,7 @@ def _read(path: Path) -> tuple[Any, Any]:
 def run(args: argparse.Namespace) -> int:
     """Handler of ``mslam eval``: read both files, compute the ATE, print JSON; returns 0."""
     from mslam.evaluate import ate
+    from mslam.rotation_metrics import rotation_report
 
     if not (args.max_diff >= 0):
         raise UserError(f"--max-diff: must be >= 0, got {args.max_diff}")
@@ -148,7 +152,9 @@ def run(args: argparse.Namespace) -> int:
         res = ate(est_stamps, est_poses, gt_stamps, gt_poses, args.align, args.max_diff)
     except ValueError as exc:
         raise UserError(f"{args.groundtruth} (reference) vs {args.estimate}: {exc}") from None
-    out = res.to_dict()
+    i, j = res.est_index, res.gt_index
+    stamps = None if est_stamps is None else est_stamps[i]
+    out = {**res.to_dict(), **(rotation_report(stamps, est_poses[i], gt_poses[j]) or {})}
     out["align"] = args.align
     out["max_diff"] = args.max_diff if est_stamps is not None else None
     if args.map is not None:

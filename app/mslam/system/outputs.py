@@ -18,10 +18,9 @@ Files in the output folder, every one written atomically (temporary file, then r
   a keyframe whose depth disagrees with the keyframes it overlaps by more than
   ``output.scale_tolerance`` (log ratio, default 0.2) is rescaled about its camera
   (``mslam.system.map_scale``); binary little-endian, x y z float32, red green blue uint8.
-* ``summary.json`` — counts, timings, kernels, prior, ATE (Sim(3) Umeyama, evo's association)
-  when ground truth exists, path length.
+* ``summary.json`` — counts, timings, kernels, prior, path length, ATE (Sim(3), evo's pairs) and
+  rotations (``mslam.rotation_metrics``) against ground truth, trust (``mslam.system.health``).
 * ``trajectory.png`` — estimate (aligned) and ground truth from the top, and the error over time.
-* ``summary.json`` also says how far the run can be trusted (``mslam.system.health``).
 
 Public names, in reading order:
     C_CONF_THRESHOLD, reconstruction_points, evaluate_run, summary_dict, plot_trajectory,
@@ -117,7 +116,7 @@ def evaluate_run(system: SlamSystem, sequence: FrameSequence) -> dict[str, Any]:
     ``path_length`` is the ground truth's, summed over steps between consecutive frames that
     both have a pose (or the estimate's when there is no ground truth).
     """
-    from mslam import evaluate
+    from mslam import evaluate, rotation_metrics
 
     idx, ts, T = system.frame_poses()
     out: dict[str, Any] = {"path_length_est": _path_length(T[:, :3]) if len(T) else 0.0}
@@ -133,6 +132,7 @@ def evaluate_run(system: SlamSystem, sequence: FrameSequence) -> dict[str, Any]:
     has[idx[idx < len(gt)]] = True
     steps = np.linalg.norm(np.diff(gt[:, :3], axis=0), axis=1)
     out["path_length"] = float(steps[has[:-1] & has[1:]].sum())
+    out["rotation"] = rotation_metrics.associated_report(ts, T, gt_ts, gt)  # needs no alignment
     try:
         res = evaluate.ate(ts, T, gt_ts, gt, align="sim3")
     except ValueError as exc:  # e.g. a pure rotation: reported, never fatal to the outputs
@@ -186,6 +186,7 @@ def summary_dict(system: SlamSystem, meta: dict[str, Any], ev: dict[str, Any]) -
         "interrupted": bool(meta.get("interrupted", False)),
         "path_length": ev.get("path_length"),
         "path_length_est": ev.get("path_length_est"),
+        "rotation": ev.get("rotation"),
     }
     from mslam.system.divergence import divergence_report
     from mslam.system.health import health_report
