@@ -21,7 +21,13 @@ import numpy as np
 
 from mslam.datasets.frame import Frame, FrameSequence
 from mslam.datasets.images import optimal_intrinsics, undistort_maps
-from mslam.datasets.readers import Calibration, read_calibration, read_depth, read_rgb
+from mslam.datasets.readers import (
+    Calibration,
+    colour_registration_maps,
+    read_calibration,
+    read_depth,
+    read_rgb,
+)
 from mslam_ref.conventions import FloatArray
 from mslam_ref.pointmap import scale_intrinsics
 
@@ -88,6 +94,10 @@ class FileSequence(FrameSequence):
         self.depth_scale = float(calib.depth_scale if calib and calib.depth_scale else depth_scale)
         self.size = None if size is None else (int(size[0]), int(size[1]))
         self._maps: tuple[np.ndarray, np.ndarray] | None = None
+        #: Colour onto the depth camera's grid (``Calibration.colour``), before any resize.
+        self._colour_maps = (
+            None if calib is None or calib.colour is None else colour_registration_maps(calib)
+        )
         self.K = None
         self.distortion = None
         if calib is not None:
@@ -113,6 +123,10 @@ class FileSequence(FrameSequence):
             raise CalibrationMismatch(
                 f"{src}: image size {rgb.shape[1]}x{rgb.shape[0]} does not match the calibration "
                 f"{self.calib.width}x{self.calib.height}"
+            )
+        if self._colour_maps is not None:
+            rgb = cv2.remap(
+                rgb, *self._colour_maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE
             )
         if self._maps is not None:
             mx, my = self._maps

@@ -5,7 +5,8 @@ are 16-bit PNGs scaled by ``depth_scale`` (TUM: 5000 per metre, 7-Scenes: 1000);
 mean "no measurement" and become 0 m.
 
 Public names, in reading order:
-    Calibration, read_calibration, calibration_yaml, read_rgb, read_depth, encode_png,
+    Calibration, read_calibration, colour_registration_maps, calibration_yaml, read_rgb,
+    read_depth, encode_png,
     read_pose_matrix, matrix_to_T_WC, read_text_rows, natsorted
 """
 
@@ -14,6 +15,7 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -25,6 +27,7 @@ from mslam_ref.conventions import FloatArray
 __all__ = [
     "Calibration",
     "calibration_yaml",
+    "colour_registration_maps",
     "encode_png",
     "matrix_to_T_WC",
     "natsorted",
@@ -48,6 +51,11 @@ class Calibration:
         fx, fy, cx, cy: pinhole intrinsics (pixel-centre convention).
         distortion: OpenCV coefficients ``(k1, k2, p1, p2[, k3])``, empty when none.
         depth_scale: raw depth units per metre, or None when not given.
+        colour: ``(fx, fy, cx, cy)`` of the colour camera when its images are not registered
+            to the depth images (7-Scenes: the Kinect's colour camera sees a wider field than
+            its depth camera, whose intrinsics ``fx, fy, cx, cy`` then are). The colour images
+            are resampled onto the depth camera's pixel grid (``colour_registration_maps``),
+            so both share ``K``. None when they are registered (TUM) or there is no depth.
     """
 
     width: int
@@ -58,6 +66,7 @@ class Calibration:
     cy: float
     distortion: tuple[float, ...] = ()
     depth_scale: float | None = None
+    colour: tuple[float, float, float, float] | None = None
 
     @property
     def K(self) -> FloatArray:
@@ -72,7 +81,8 @@ class Calibration:
 
 def read_calibration(path: str | Path) -> Calibration:
     """Read upstream's calibration YAML: ``width``, ``height``, ``calibration: [fx, fy, cx, cy,
-    (k1, k2, p1, p2[, k3])]`` and optionally ``depth_scale``.
+    (k1, k2, p1, p2[, k3])]`` and optionally ``depth_scale`` and (ours) ``colour_calibration:
+    [fx, fy, cx, cy]`` (:attr:`Calibration.colour`).
 
     Upstream: main.py (``--calib``) and dataloader.py::Intrinsics.from_calib.
 
@@ -114,7 +124,43 @@ def read_calibration(path: str | Path) -> Calibration:
     if depth_scale is not None and depth_scale <= 0:
         raise ValueError(f"{path}: depth_scale must be positive, got {depth_scale}")
     fx, fy, cx, cy = vals[:4]
-    return Calibration(width, height, fx, fy, cx, cy, tuple(vals[4:]), depth_scale)
+    colour = _colour_intrinsics(path, data.get("colour_calibration"), len(vals) > 4)
+    return Calibration(width, height, fx, fy, cx, cy, tuple(vals[4:]), depth_scale, colour)
+
+
+def _colour_intrinsics(
+    path: Path, cal: Any, distorted: bool
+) -> tuple[float, float, float, float] | None:
+    """``colour_calibration`` of a calibration YAML as ``(fx, fy, cx, cy)``, or None."""
+    if cal is None:
+        return None
+    if distorted:
+        raise ValueError(f"{path}: colour_calibration cannot be combined with distortion")
+    try:
+        vals = [float(v) for v in cal]
+    except (TypeError, ValueError):
+        vals = []
+    if len(vals) != 4 or vals[0] <= 0 or vals[1] <= 0 or not np.all(np.isfinite(vals)):
+        raise ValueError(f"{path}: colour_calibration must be [fx, fy, cx, cy], fx, fy > 0")
+    return (vals[0], vals[1], vals[2], vals[3])
+
+
+def colour_registration_maps(calib: Calibration) -> tuple[np.ndarray, np.ndarray]:
+    """``cv2.remap`` maps (H, W) float32 that resample a colour image onto the depth camera's
+    pixel grid: depth pixel (u, v) looks along ``((u - cx) / fx, (v - cy) / fy)``, which the
+    colour camera sees at ``(cx_c + fx_c (u - cx) / fx, cy_c + fy_c (v - cy) / fy)``. The
+    cameras' small offset (a few centimetres on a Kinect) is neglected. Needs
+    ``calib.colour``."""
+    if calib.colour is None:
+        raise ValueError("colour_registration_maps: the calibration has no colour intrinsics")
+    fx_c, fy_c, cx_c, cy_c = calib.colour
+    u = np.arange(calib.width, dtype=np.float64)
+    v = np.arange(calib.height, dtype=np.float64)
+    mx = cx_c + fx_c * (u - calib.cx) / calib.fx
+    my = cy_c + fy_c * (v - calib.cy) / calib.fy
+    map_x = np.broadcast_to(mx[None, :], (calib.height, calib.width)).astype(np.float32)
+    map_y = np.broadcast_to(my[:, None], (calib.height, calib.width)).astype(np.float32)
+    return map_x, map_y
 
 
 def calibration_yaml(

@@ -1,0 +1,80 @@
+"""``colour_calibration``: colour images not registered to the depth images (7-Scenes) are
+resampled onto the depth camera's pixel grid (``mslam.datasets.readers.Calibration.colour``)."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from mslam.cli import main
+from mslam.datasets import load_sequence, read_calibration
+
+W, H = 128, 96
+ZOOM = 0.88  #: colour focal / depth focal (the Kinect v1 of 7-Scenes: about 520 / 585)
+
+
+@pytest.fixture(scope="module")
+def registered(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("reg") / "loop"
+    assert main(["synth", "loop", "--out", str(out), "--frames", "3", "--width", str(W),
+                 "--height", str(H), "--seed", "2"]) == 0  # fmt: skip
+    return out
+
+
+def _unregistered(registered: Path, dst: Path) -> tuple[Path, list[float]]:
+    """A copy whose colour images come from a camera with ZOOM times the depth camera's focal
+    length (a wider view, same centre), and the calibration naming both cameras."""
+    shutil.copytree(registered, dst)
+    cal = read_calibration(dst / "calib.yaml")
+    colour = [ZOOM * cal.fx, ZOOM * cal.fy, cal.cx, cal.cy]
+    # Colour pixel x sees the direction of depth pixel cx + (x - cx) / ZOOM.
+    M = np.array([[1 / ZOOM, 0, cal.cx * (1 - 1 / ZOOM)], [0, 1 / ZOOM, cal.cy * (1 - 1 / ZOOM)]])
+    for p in sorted((dst / "rgb").iterdir()):
+        img = cv2.imread(str(p))
+        flags = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP  # dst(x) = src(M x)
+        wide = cv2.warpAffine(img, M, (W, H), flags=flags, borderMode=cv2.BORDER_REPLICATE)
+        cv2.imwrite(str(p), wide)
+    text = (dst / "calib.yaml").read_text()
+    (dst / "calib.yaml").write_text(text + f"colour_calibration: {colour}\n")
+    return dst, colour
+
+
+def _inner(a: np.ndarray) -> np.ndarray:
+    return a[H // 8 : -H // 8, W // 8 : -W // 8].astype(float)
+
+
+def test_colour_is_resampled_onto_the_depth_grid(registered: Path, tmp_path: Path) -> None:
+    d, colour = _unregistered(registered, tmp_path / "unreg")
+    cal = read_calibration(d / "calib.yaml")
+    assert cal.colour == pytest.approx(tuple(colour))
+    truth, seq = load_sequence(registered), load_sequence(d)
+    np.testing.assert_array_equal(seq.K, truth.K)  # both cameras now share the depth's K
+    raw = cv2.imread(str(sorted((d / "rgb").iterdir())[1]))[..., ::-1]
+    for i in range(len(seq)):
+        np.testing.assert_array_equal(seq[i].depth, truth[i].depth)
+    err_after = np.abs(_inner(seq[1].rgb) - _inner(truth[1].rgb)).mean()
+    err_before = np.abs(_inner(raw) - _inner(truth[1].rgb)).mean()
+    assert err_after < 0.35 * err_before, (err_after, err_before)
+
+
+def test_colour_calibration_errors(tmp_path: Path) -> None:
+    p = tmp_path / "c.yaml"
+    base = "width: 640\nheight: 480\ncalibration: [585, 585, 320, 240]\n"
+    p.write_text(base + "colour_calibration: [520, 520, 320]\n")
+    with pytest.raises(ValueError, match=r"c\.yaml: colour_calibration must be"):
+        read_calibration(p)
+    p.write_text(base + "colour_calibration: [0, 520, 320, 240]\n")
+    with pytest.raises(ValueError, match="fx, fy > 0"):
+        read_calibration(p)
+    p.write_text(
+        "width: 640\nheight: 480\ncalibration: [585, 585, 320, 240, 0.1, 0, 0, 0]\n"
+        "colour_calibration: [520, 520, 320, 240]\n"
+    )
+    with pytest.raises(ValueError, match="cannot be combined with distortion"):
+        read_calibration(p)
+    p.write_text(base)
+    assert read_calibration(p).colour is None
