@@ -78,3 +78,16 @@ def test_colour_calibration_errors(tmp_path: Path) -> None:
         read_calibration(p)
     p.write_text(base)
     assert read_calibration(p).colour is None
+
+
+def test_colour_distortion_follows_opencv(tmp_path: Path) -> None:
+    from mslam.datasets.readers import Calibration, colour_registration_maps
+
+    colour = (520.0, 515.0, 318.0, 242.0, -0.12, 0.03, 0.001, -0.002, 0.01)
+    cal = Calibration(64, 48, 585.0, 585.0, 32.0, 24.0, (), None, colour)
+    mx, my = colour_registration_maps(cal)
+    v, u = np.mgrid[0:48:7, 0:64:9].reshape(2, -1)
+    rays = np.stack([(u - 32.0) / 585.0, (v - 24.0) / 585.0, np.ones(len(u))], -1)
+    K_c = np.array([[520.0, 0, 318.0], [0, 515.0, 242.0], [0, 0, 1.0]])
+    uv, _ = cv2.projectPoints(rays, np.zeros(3), np.zeros(3), K_c, np.array(colour[4:]))
+    np.testing.assert_allclose(np.stack([mx[v, u], my[v, u]], -1), uv.reshape(-1, 2), atol=1e-3)

@@ -51,7 +51,8 @@ class Calibration:
         fx, fy, cx, cy: pinhole intrinsics (pixel-centre convention).
         distortion: OpenCV coefficients ``(k1, k2, p1, p2[, k3])``, empty when none.
         depth_scale: raw depth units per metre, or None when not given.
-        colour: ``(fx, fy, cx, cy)`` of the colour camera when its images are not registered
+        colour: ``(fx, fy, cx, cy[, k1, k2, p1, p2[, k3]])`` of the colour camera (OpenCV's
+            distortion model) when its images are not registered
             to the depth images (7-Scenes: the Kinect's colour camera sees a wider field than
             its depth camera, whose intrinsics ``fx, fy, cx, cy`` then are). The colour images
             are resampled onto the depth camera's pixel grid (``colour_registration_maps``),
@@ -66,7 +67,7 @@ class Calibration:
     cy: float
     distortion: tuple[float, ...] = ()
     depth_scale: float | None = None
-    colour: tuple[float, float, float, float] | None = None
+    colour: tuple[float, ...] | None = None
 
     @property
     def K(self) -> FloatArray:
@@ -82,7 +83,7 @@ class Calibration:
 def read_calibration(path: str | Path) -> Calibration:
     """Read upstream's calibration YAML: ``width``, ``height``, ``calibration: [fx, fy, cx, cy,
     (k1, k2, p1, p2[, k3])]`` and optionally ``depth_scale`` and (ours) ``colour_calibration:
-    [fx, fy, cx, cy]`` (:attr:`Calibration.colour`).
+    [fx, fy, cx, cy, (k1, k2, p1, p2[, k3])]`` (:attr:`Calibration.colour`).
 
     Upstream: main.py (``--calib``) and dataloader.py::Intrinsics.from_calib.
 
@@ -128,10 +129,9 @@ def read_calibration(path: str | Path) -> Calibration:
     return Calibration(width, height, fx, fy, cx, cy, tuple(vals[4:]), depth_scale, colour)
 
 
-def _colour_intrinsics(
-    path: Path, cal: Any, distorted: bool
-) -> tuple[float, float, float, float] | None:
-    """``colour_calibration`` of a calibration YAML as ``(fx, fy, cx, cy)``, or None."""
+def _colour_intrinsics(path: Path, cal: Any, distorted: bool) -> tuple[float, ...] | None:
+    """``colour_calibration`` of a calibration YAML as ``(fx, fy, cx, cy, distortion...)``, or
+    None."""
     if cal is None:
         return None
     if distorted:
@@ -140,27 +140,32 @@ def _colour_intrinsics(
         vals = [float(v) for v in cal]
     except (TypeError, ValueError):
         vals = []
-    if len(vals) != 4 or vals[0] <= 0 or vals[1] <= 0 or not np.all(np.isfinite(vals)):
-        raise ValueError(f"{path}: colour_calibration must be [fx, fy, cx, cy], fx, fy > 0")
-    return (vals[0], vals[1], vals[2], vals[3])
+    if len(vals) not in (4, 8, 9) or vals[0] <= 0 or vals[1] <= 0 or not np.all(np.isfinite(vals)):
+        raise ValueError(
+            f"{path}: colour_calibration must be [fx, fy, cx, cy(, k1, k2, p1, p2(, k3))], "
+            "fx, fy > 0"
+        )
+    return tuple(vals)
 
 
 def colour_registration_maps(calib: Calibration) -> tuple[np.ndarray, np.ndarray]:
     """``cv2.remap`` maps (H, W) float32 that resample a colour image onto the depth camera's
-    pixel grid: depth pixel (u, v) looks along ``((u - cx) / fx, (v - cy) / fy)``, which the
-    colour camera sees at ``(cx_c + fx_c (u - cx) / fx, cy_c + fy_c (v - cy) / fy)``. The
+    pixel grid: depth pixel (u, v) looks along ``x = ((u - cx) / fx, (v - cy) / fy)``, which
+    the colour camera sees at ``(cx_c, cy_c) + (fx_c, fy_c) · d(x)``, with ``d`` its lens
+    distortion (OpenCV's radial-tangential model; the identity without coefficients). The
     cameras' small offset (a few centimetres on a Kinect) is neglected. Needs
     ``calib.colour``."""
     if calib.colour is None:
         raise ValueError("colour_registration_maps: the calibration has no colour intrinsics")
-    fx_c, fy_c, cx_c, cy_c = calib.colour
-    u = np.arange(calib.width, dtype=np.float64)
-    v = np.arange(calib.height, dtype=np.float64)
-    mx = cx_c + fx_c * (u - calib.cx) / calib.fx
-    my = cy_c + fy_c * (v - calib.cy) / calib.fy
-    map_x = np.broadcast_to(mx[None, :], (calib.height, calib.width)).astype(np.float32)
-    map_y = np.broadcast_to(my[:, None], (calib.height, calib.width)).astype(np.float32)
-    return map_x, map_y
+    fx_c, fy_c, cx_c, cy_c, *dist = calib.colour
+    u, v = np.meshgrid(np.arange(calib.width, dtype=np.float64), np.arange(calib.height))
+    x, y = (u - calib.cx) / calib.fx, (v - calib.cy) / calib.fy
+    k1, k2, p1, p2, k3 = (*dist, 0.0, 0.0, 0.0, 0.0, 0.0)[:5]
+    r2 = x * x + y * y
+    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+    yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+    return (cx_c + fx_c * xd).astype(np.float32), (cy_c + fy_c * yd).astype(np.float32)
 
 
 def calibration_yaml(
