@@ -177,6 +177,7 @@ APP_LAYERS: tuple[tuple[str, ...], ...] = (
         "mslam.g2o_ba",
         "mslam.kernels",
         "mslam.evaluate",
+        "mslam.rotation_metrics",
         "mslam.baselines",
         "mslam.device",
     ),

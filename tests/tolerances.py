@@ -154,6 +154,8 @@ SIM3_FIT = 1e-6
 #: centroid of a blurred point after the 4x INTER_AREA resize vs its projection with the
 #: rescaled K (pixels; measured ~1e-3 px, the plain multiplication of cx, cy misses by 0.375 px)
 RESIZE_CENTROID_PX = 0.05
+#: pixel coordinates kept as float32 in ``cv2.remap`` maps (images of up to a few thousand px)
+REMAP_F32_PX = 1e-3
 #: ratio of the frame's to the keyframe's metric scale in one two-view pair, over the pixels
 #: the prior triangulated (relative; synthetic loop 160x120 pairs, median 0.994-0.998)
 PAIR_SCALE_REL = 0.02

@@ -6,6 +6,7 @@ import json
 
 import numpy as np
 import pytest
+from tolerances import F64_IDENTITY, F64_SOLVE
 
 from mslam import formats as io
 from mslam.cli import main
@@ -89,8 +90,8 @@ def test_matrices_are_projected_onto_rotations() -> None:
     M[:, :3, :3] *= 1.0002  # stored matrices are often slightly off
     R = rotations(M)
     assert R is not None
-    assert np.allclose(np.einsum("nji,njk->nik", R, R), np.eye(3), atol=1e-12)
-    assert np.allclose(R, so3.to_matrix(gt[:, 3:7]), atol=1e-9)
+    assert np.allclose(np.einsum("nji,njk->nik", R, R), np.eye(3), atol=F64_IDENTITY)
+    assert np.allclose(R, so3.to_matrix(gt[:, 3:7]), atol=F64_SOLVE)
 
 
 def test_mslam_eval_prints_the_rotation_figures(tmp_path, capsys) -> None:
