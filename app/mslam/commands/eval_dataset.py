@@ -22,7 +22,9 @@ without calibration). This is the same in one command:
    in ``DIR/<sequence>/map_metrics.json``;
 5. progress goes to stderr; ``DIR/results.md`` and ``DIR/results.csv`` get the table (per
    sequence: ATE RMSE and the frames it covers, map accuracy, completion, chamfer, far share
-   and chamfer after ICP, frames posed, keyframes, FPS, scale, warnings; and the mean), which
+   and chamfer after ICP, frames posed, keyframes, FPS, scale, rotation gain
+   (``mslam.rotation_metrics``: 1 when the estimate turns as much as the camera), warnings;
+   and the mean), which
    is also printed.
 
 Public names, in reading order:
@@ -164,20 +166,21 @@ def results_rows(results: list[tuple[str, dict | None, str]]) -> list[dict[str, 
                 keyframes=s["keyframes"],
                 fps=s.get("frames_per_second"),
                 scale=(s.get("ate") or {}).get("scale"),
+                rotation_gain=(s.get("rotation") or {}).get("rotation_gain"),
                 warnings=len(s.get("warnings", [])),
             )
             r.update((k, (s.get("map") or {}).get(k)) for k in MAP_KEYS)
         rows.append(r)
     ok = [r for r in rows if r.get("ate_rmse_m") is not None]
     mean: dict[str, Any] = {"sequence": "mean", "status": f"{len(ok)} of {len(rows)} scored"}
-    for key in ("ate_rmse_m", "fps", *MAP_KEYS):
+    for key in ("ate_rmse_m", "fps", "rotation_gain", *MAP_KEYS):
         vals = [r[key] for r in ok if r.get(key) is not None]
         mean[key] = sum(vals) / len(vals) if vals else None
     return [*rows, mean]
 
 
 COLUMNS = ("sequence", "ate_rmse_m", "ate_frames", *MAP_KEYS, "frames_posed", "frames",
-           "keyframes", "fps", "scale", "warnings", "status")  # fmt: skip
+           "keyframes", "fps", "scale", "rotation_gain", "warnings", "status")  # fmt: skip
 
 
 def _fmt(v: Any, key: str) -> str:
@@ -185,8 +188,8 @@ def _fmt(v: Any, key: str) -> str:
         return ""
     if key == "ate_rmse_m" or key in MAP_KEYS:
         return f"{v:.4f}"
-    if key in ("fps", "scale"):
-        return f"{v:.3f}" if key == "scale" else f"{v:.2f}"
+    if key in ("fps", "scale", "rotation_gain"):
+        return f"{v:.2f}" if key == "fps" else f"{v:.3f}"
     return str(v)
 
 
