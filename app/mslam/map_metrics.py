@@ -41,6 +41,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial import cKDTree
 
+from mslam.rotation_metrics import angle_deg
 from mslam_ref import sim3, so3
 from mslam_ref.conventions import FloatArray, as_float_array
 from mslam_ref.pointmap import camera_rays
@@ -185,10 +186,6 @@ def align_points(points: Any, R: FloatArray, t: FloatArray, s: float) -> FloatAr
     return s * _cloud(points, "points") @ np.asarray(R).T + np.asarray(t)
 
 
-def _angle_deg(R: FloatArray) -> float:
-    return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
-
-
 def orientation_disagreement(R: FloatArray, est_quats: Any, gt_quats: Any) -> float:
     """Angle (degrees) between an alignment rotation and the one the orientations imply.
 
@@ -206,7 +203,7 @@ def orientation_disagreement(R: FloatArray, est_quats: Any, gt_quats: Any) -> fl
     )
     U, _, Vt = np.linalg.svd(M)
     R_o = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
-    return _angle_deg(R_o.T @ np.asarray(R))
+    return float(angle_deg(R_o.T @ np.asarray(R)))
 
 
 def pose_alignment(
@@ -388,7 +385,7 @@ def evaluate_map(
         )
     if refine == "icp":
         R2, t2, s2 = icp_refine(map_points, truth_points, R, t, s, seed)
-        info["icp_rotation_deg"] = _angle_deg(R2.T @ R)
+        info["icp_rotation_deg"] = float(angle_deg(R2.T @ R))
         c_traj = np.mean(align_points(map_points, R, t, s), axis=0)
         c_icp = np.mean(align_points(map_points, R2, t2, s2), axis=0)
         info["icp_centroid_shift_m"] = float(np.linalg.norm(c_icp - c_traj))

@@ -18,7 +18,8 @@ pairs, for pairs (i, j) about ``lag_s`` seconds apart:
   (``Σ |ω_gt|`` under :data:`MIN_TURN_DEG`).
 
 Public names, in reading order:
-    MIN_TURN_DEG, rotations, lagged_turns, rotation_gain, rotation_report, associated_report
+    MIN_TURN_DEG, rotations, angle_deg, lagged_turns, rotation_gain, rotation_report,
+    associated_report
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ from mslam_ref.conventions import FloatArray
 
 __all__ = [
     "MIN_TURN_DEG",
+    "angle_deg",
     "associated_report",
     "lagged_turns",
     "rotation_gain",
@@ -59,9 +61,9 @@ def rotations(poses: Any) -> FloatArray | None:
     return None
 
 
-def _angle_deg(R: FloatArray) -> FloatArray:
-    """(n,) rotation angles in degrees of (n, 3, 3) rotations."""
-    c = (np.trace(R, axis1=1, axis2=2) - 1.0) / 2.0
+def angle_deg(R: FloatArray) -> FloatArray:
+    """(...) rotation angles in degrees of (..., 3, 3) rotations: ``arccos((tr R - 1) / 2)``."""
+    c = (np.trace(R, axis1=-2, axis2=-1) - 1.0) / 2.0
     return np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
 
 
@@ -88,7 +90,7 @@ def lagged_turns(
     w_est = _log(np.einsum("nij,nkj->nik", R_est[lag:], R_est[:-lag]))
     rel_est = np.einsum("nji,njk->nik", R_est[:-lag], R_est[lag:])
     rel_gt = np.einsum("nji,njk->nik", R_gt[:-lag], R_gt[lag:])
-    return w_est, w_gt, _angle_deg(np.einsum("nji,njk->nik", rel_est, rel_gt))
+    return w_est, w_gt, angle_deg(np.einsum("nji,njk->nik", rel_est, rel_gt))
 
 
 def rotation_gain(w_est: FloatArray, w_gt: FloatArray) -> float | None:
@@ -137,9 +139,13 @@ def associated_report(
 ) -> dict[str, float | None] | None:
     """:func:`rotation_report` of the pairs evo's association finds (as the ATE's,
     :func:`mslam.evaluate.associate`); works where the ATE cannot align (a camera that only
-    turns)."""
+    turns). None, never an exception, when the stamps cannot be associated: a run's outputs
+    do not depend on it."""
     from mslam.evaluate import associate
 
-    i_est, i_gt = associate(est_stamps, gt_stamps, max_diff)
+    try:
+        i_est, i_gt = associate(est_stamps, gt_stamps, max_diff)
+    except ValueError:
+        return None
     st = np.asarray(est_stamps, np.float64)[i_est]
     return rotation_report(st, np.asarray(est_poses)[i_est], np.asarray(gt_poses)[i_gt])

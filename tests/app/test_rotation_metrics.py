@@ -102,3 +102,9 @@ def test_mslam_eval_prints_the_rotation_figures(tmp_path, capsys) -> None:
     res = json.loads(capsys.readouterr().out)
     assert res["rotation_gain"] == pytest.approx(0.85, abs=0.02)
     assert res["rotation_error_median_deg"] > 0
+
+
+def test_stamps_that_cannot_be_associated_give_no_report_not_an_error() -> None:
+    t, gt = _walk()
+    assert associated_report(t[:0], gt[:0], t, gt) is None
+    assert associated_report(t + 100.0, gt, t, gt) is None
