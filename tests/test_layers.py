@@ -172,6 +172,7 @@ def test_cycle_finder_finds_a_cycle() -> None:
 APP_LAYERS: tuple[tuple[str, ...], ...] = (
     ("mslam.atomic", "mslam.errors", "mslam.outdir"),
     (
+        "mslam.ply",
         "mslam.formats",
         "mslam.bal",
         "mslam.g2o_ba",

@@ -9,8 +9,9 @@ What a run writes and what the evaluation reads:
 * **EuRoC ground-truth csv** (``state_groundtruth_estimate0/data.csv``): ``ns, x, y, z, qw, qx,
   qy, qz, ...``, converted the way evo converts it (``stamp_ns / 1e9`` in float64, quaternion
   rolled to xyzw);
-* **PLY point clouds**: binary little-endian, vertex ``x y z`` float32 + ``red green blue``
-  uchar, upstream's ``save_ply`` layout.
+* **PLY point clouds** (:mod:`mslam.ply`, re-exported here): written binary little-endian,
+  vertex ``x y z`` float32 + ``red green blue`` uchar, upstream's ``save_ply`` layout; read
+  also as ASCII or big-endian, with or without colours.
 
 Writers go through :func:`mslam.atomic.write_atomic` (temporary file + rename), so an
 error never leaves a partial file. Readers raise ``ValueError("<file>:<line>: <what>")`` on a
@@ -30,9 +31,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import numpy.typing as npt
 
 from mslam.atomic import write_atomic
+from mslam.ply import read_ply, write_ply
 from mslam_ref import so3
 from mslam_ref.conventions import FloatArray, as_float_array
 
@@ -276,115 +277,3 @@ def read_trajectory(path: str | Path) -> tuple[FloatArray | None, FloatArray]:
         f"{path}:{k}: unknown trajectory format: {n} columns (TUM has 8, KITTI 12, EuRoC csv "
         "uses commas)"
     )
-
-
-_PLY_TYPES = {
-    "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1",
-    "short": "i2", "int16": "i2", "ushort": "u2", "uint16": "u2",
-    "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
-    "float": "f4", "float32": "f4", "double": "f8", "float64": "f8",
-}  # fmt: skip
-
-
-def write_ply(path: str | Path, xyz: Any, rgb: Any) -> None:
-    """Write a coloured point cloud as a binary little-endian PLY, atomically.
-
-    Upstream: mast3r_slam/evaluate.py::save_ply (vertex x, y, z float; red, green, blue uchar).
-
-    Args:
-        path: output file (parent folders are created).
-        xyz: (N, 3) finite points (stored as float32).
-        rgb: (N, 3) colours, integers in [0, 255] (stored as uint8).
-
-    Raises:
-        ValueError: on bad shapes, non-finite points or colours outside [0, 255].
-    """
-    xyz = as_float_array(xyz, "xyz", 3)
-    rgb_arr = np.asarray(rgb)
-    if xyz.ndim != 2:
-        raise ValueError(f"xyz: expected shape (N, 3), got {xyz.shape}")
-    if rgb_arr.shape != xyz.shape:
-        raise ValueError(f"rgb: expected shape {xyz.shape} to match xyz, got {rgb_arr.shape}")
-    if rgb_arr.size and (
-        not np.all(np.isfinite(rgb_arr)) or rgb_arr.min() < 0 or rgb_arr.max() > 255
-    ):
-        raise ValueError("rgb: colours must be finite and in [0, 255]")
-    if np.any(np.abs(xyz) > np.finfo(np.float32).max):
-        raise ValueError("xyz: values overflow float32")
-    n = len(xyz)
-    vertex = np.empty(
-        n,
-        dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"),
-               ("red", "u1"), ("green", "u1"), ("blue", "u1")],
-    )  # fmt: skip
-    vertex["x"], vertex["y"], vertex["z"] = xyz.astype(np.float32).T
-    rgb_u8 = (
-        np.rint(rgb_arr).astype(np.uint8) if rgb_arr.dtype.kind == "f" else rgb_arr.astype(np.uint8)
-    )
-    vertex["red"], vertex["green"], vertex["blue"] = rgb_u8.T
-    header = (
-        "ply\nformat binary_little_endian 1.0\n"
-        f"element vertex {n}\n"
-        "property float x\nproperty float y\nproperty float z\n"
-        "property uchar red\nproperty uchar green\nproperty uchar blue\n"
-        "end_header\n"
-    )
-    write_atomic(path, header.encode("ascii") + vertex.tobytes())
-
-
-def read_ply(path: str | Path) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.uint8]]:
-    """Read a binary little-endian PLY point cloud with x, y, z and red, green, blue vertex
-    properties (other scalar properties and elements after ``vertex`` are ignored).
-
-    Args:
-        path: the file.
-
-    Returns:
-        xyz (N, 3) float32 and rgb (N, 3) uint8.
-
-    Raises:
-        ValueError: naming the file on a bad header, an unsupported format or truncated data.
-        FileNotFoundError: when the file does not exist.
-    """
-    path = Path(path)
-    data = path.read_bytes()
-    end = data.find(b"end_header\n")
-    if not data.startswith(b"ply\n") or end < 0:
-        raise ValueError(f"{path}: not a PLY file (missing 'ply' magic or 'end_header')")
-    header = data[:end].decode("ascii", errors="replace").splitlines()
-    body = data[end + len(b"end_header\n") :]
-    n_vertex, fields, in_vertex, fmt_ok = None, [], False, False
-    for k, line in enumerate(header, start=1):
-        tok = line.split()
-        if not tok or tok[0] in ("ply", "comment", "obj_info"):
-            continue
-        if tok[0] == "format":
-            fmt_ok = tok[1:2] == ["binary_little_endian"]
-            if not fmt_ok:
-                raise ValueError(f"{path}:{k}: unsupported PLY format {line!r}")
-        elif tok[0] == "element":
-            in_vertex = tok[1:2] == ["vertex"]
-            if in_vertex:
-                try:
-                    n_vertex = int(tok[2])
-                except (IndexError, ValueError):
-                    raise ValueError(f"{path}:{k}: bad element line {line!r}") from None
-        elif tok[0] == "property" and in_vertex:
-            if len(tok) != 3 or tok[1] not in _PLY_TYPES:
-                raise ValueError(f"{path}:{k}: unsupported vertex property {line!r}")
-            fields.append((tok[2], "<" + _PLY_TYPES[tok[1]]))
-    names = [f[0] for f in fields]
-    if not fmt_ok or n_vertex is None:
-        raise ValueError(f"{path}: PLY header lacks a format or a vertex element")
-    if not {"x", "y", "z", "red", "green", "blue"} <= set(names):
-        raise ValueError(f"{path}: PLY vertices need x, y, z, red, green, blue; got {names}")
-    dtype = np.dtype(fields)
-    if len(body) < n_vertex * dtype.itemsize:
-        raise ValueError(
-            f"{path}: truncated PLY: {n_vertex} vertices need {n_vertex * dtype.itemsize} "
-            f"bytes, found {len(body)}"
-        )
-    v = np.frombuffer(body, dtype=dtype, count=n_vertex)
-    xyz = np.stack([v["x"], v["y"], v["z"]], axis=1).astype(np.float32)
-    rgb = np.stack([v["red"], v["green"], v["blue"]], axis=1).astype(np.uint8)
-    return xyz, rgb

@@ -12,6 +12,7 @@ from hypothesis import strategies as st
 from tolerances import F64_COPY, F64_IDENTITY
 
 from mslam import formats as io
+from mslam.ply import GREY
 from mslam_ref import sim3
 
 
@@ -205,6 +206,51 @@ def test_ply_validation_and_malformed(tmp_path) -> None:
     (tmp_path / "n.ply").write_bytes(b"not a ply")
     with pytest.raises(ValueError, match=re.escape("n.ply: not a PLY")):
         io.read_ply(tmp_path / "n.ply")
-    (tmp_path / "a.ply").write_bytes(good.read_bytes().replace(b"binary_little_endian", b"ascii"))
+    (tmp_path / "a.ply").write_bytes(good.read_bytes().replace(b"binary_little_endian", b"ebcdic"))
     with pytest.raises(ValueError, match=re.escape("a.ply:2: unsupported PLY format")):
         io.read_ply(tmp_path / "a.ply")
+    (tmp_path / "b.ply").write_bytes(good.read_bytes().replace(b"binary_little_endian", b"ascii"))
+    with pytest.raises(ValueError, match=re.escape("b.ply: truncated PLY")):
+        io.read_ply(tmp_path / "b.ply")
+    face_first = b"ply\nformat ascii 1.0\nelement face 0\nproperty list uchar int vertex_indices\n"
+    (tmp_path / "f.ply").write_bytes(face_first + b"element vertex 0\nend_header\n")
+    with pytest.raises(ValueError, match=re.escape("f.ply:3: the first element must be 'vertex'")):
+        io.read_ply(tmp_path / "f.ply")
+    (tmp_path / "x.ply").write_bytes(
+        b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nend_header\n1\n"
+    )
+    with pytest.raises(ValueError, match=re.escape("x.ply: PLY vertices need x, y, z")):
+        io.read_ply(tmp_path / "x.ply")
+
+
+def test_ply_reads_ascii_without_colours_and_ignores_faces(tmp_path) -> None:
+    """A ground-truth mesh from another tool: ASCII, normals, no colours, faces after the vertices."""
+    text = (
+        "ply\r\nformat ascii 1.0\r\ncomment from a scanner\r\nelement vertex 2\r\n"
+        "property double x\r\nproperty double y\r\nproperty double z\r\nproperty float nx\r\n"
+        "element face 1\r\nproperty list uchar int vertex_indices\r\nend_header\r\n"
+        "0.5 -1 2 0\r\n3 4.25 -5e-1 1\r\n3 0 1 1\r\n"
+    )
+    (tmp_path / "m.ply").write_text(text, newline="")
+    xyz, rgb = io.read_ply(tmp_path / "m.ply")
+    np.testing.assert_array_equal(xyz, np.array([[0.5, -1, 2], [3, 4.25, -0.5]], np.float32))
+    np.testing.assert_array_equal(rgb, np.full((2, 3), GREY, np.uint8))
+
+
+def test_ply_reads_big_endian_doubles_and_float_colours(tmp_path) -> None:
+    xyz = np.array([[1.0, -2.0, 3.5], [1e-3, 7.0, -0.25]])
+    colours = np.array([[1.0, 0.0, 0.5], [0.2, 0.4, 0.6]])
+    dtype = [("x", ">f8"), ("y", ">f8"), ("z", ">f8"), ("nz", ">f4"),
+             ("red", ">f4"), ("green", ">f4"), ("blue", ">f4")]  # fmt: skip
+    v = np.zeros(2, dtype)
+    v["x"], v["y"], v["z"] = xyz.T
+    v["red"], v["green"], v["blue"] = colours.T
+    head = (
+        "ply\nformat binary_big_endian 1.0\nelement vertex 2\nproperty double x\n"
+        "property double y\nproperty double z\nproperty float nz\nproperty float red\n"
+        "property float green\nproperty float blue\nend_header\n"
+    )
+    (tmp_path / "b.ply").write_bytes(head.encode() + v.tobytes())
+    xyz2, rgb2 = io.read_ply(tmp_path / "b.ply")
+    np.testing.assert_array_equal(xyz2, xyz.astype(np.float32))
+    np.testing.assert_array_equal(rgb2, np.rint(colours * 255).astype(np.uint8))

@@ -72,7 +72,10 @@ def register(subparsers: Any) -> None:
     )
     truth = p.add_mutually_exclusive_group()
     truth.add_argument(
-        "--truth-cloud", type=Path, metavar="PLY", help="true point cloud (PLY), world frame"
+        "--truth-cloud",
+        type=Path,
+        metavar="PLY",
+        help="true point cloud or mesh (PLY: binary or ASCII, colours optional), world frame",
     )
     truth.add_argument(
         "--truth-rgbd",
