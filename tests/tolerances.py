@@ -220,3 +220,7 @@ FAST_MOTION_ORIENTATION_DEG = 10.0
 #: |log s| of a tracking solve whose only error is zero-mean noise in one side's distances
 #: (5000 points, relative sigma 0.3: sampling error ~0.005; the diluted side gives ~0.086)
 TRACKING_SCALE_BIAS_LOG = 0.03
+
+#: Colour/depth zoom recovered from edge alignment on a synthetic unregistered folder
+#: (``mslam.datasets.registration``: searched in steps of 0.005 at half resolution).
+REGISTRATION_ZOOM = 0.015

@@ -172,6 +172,9 @@ def run(
             meta["baseline"] = rgbd_odometry_ate(src.sequence)
         meta["config"] = config_to_dict(cfg)
         meta["device"] = device
+        registration = getattr(src.sequence, "colour_registration", None)  # 7-Scenes folders
+        if registration:
+            meta["colour_registration"] = registration
         if target is None:
             from mslam.system.outputs import evaluate_run, summary_dict
 

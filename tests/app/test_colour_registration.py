@@ -9,7 +9,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from tolerances import REMAP_F32_PX
+from tolerances import REGISTRATION_ZOOM, REMAP_F32_PX
 
 from mslam.cli import main
 from mslam.datasets import load_sequence, read_calibration
@@ -37,7 +37,8 @@ def _unregistered(registered: Path, dst: Path) -> tuple[Path, list[float]]:
     for p in sorted((dst / "rgb").iterdir()):
         img = cv2.imread(str(p))
         flags = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP  # dst(x) = src(M x)
-        wide = cv2.warpAffine(img, M, (W, H), flags=flags, borderMode=cv2.BORDER_REPLICATE)
+        size = img.shape[1::-1]
+        wide = cv2.warpAffine(img, M, size, flags=flags, borderMode=cv2.BORDER_REPLICATE)
         cv2.imwrite(str(p), wide)
     text = (dst / "calib.yaml").read_text()
     (dst / "calib.yaml").write_text(text + f"colour_calibration: {colour}\n")
@@ -94,3 +95,56 @@ def test_colour_distortion_follows_opencv(tmp_path: Path) -> None:
     np.testing.assert_allclose(
         np.stack([mx[v, u], my[v, u]], -1), uv.reshape(-1, 2), atol=REMAP_F32_PX
     )
+
+
+def _frames(folder: Path) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    seq = load_sequence(folder)
+    return [seq[i].rgb for i in range(len(seq))], [seq[i].depth for i in range(len(seq))]
+
+
+@pytest.fixture(scope="module")
+def registered_large(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("reg") / "loop"
+    assert main(["synth", "loop", "--out", str(out), "--frames", "4", "--width", "256",
+                 "--height", "192", "--seed", "3"]) == 0  # fmt: skip
+    return out
+
+
+def test_edges_find_the_colour_zoom_and_leave_registered_images(
+    registered_large: Path, tmp_path: Path
+) -> None:
+    """The edge search returns None on registered images and recovers the colour camera of
+    unregistered ones; ``colour_calibration: auto`` then resamples them like the true value."""
+    from mslam.datasets.registration import estimate_colour_intrinsics
+
+    cal = read_calibration(registered_large / "calib.yaml")
+    colour, info = estimate_colour_intrinsics(cal, *_frames(registered_large))
+    assert colour is None and info["zoom"] == pytest.approx(1.0, abs=REGISTRATION_ZOOM)
+    d, truth = _unregistered(registered_large, tmp_path / "unreg")
+    text = (d / "calib.yaml").read_text().replace(f"colour_calibration: {truth}", "")
+    (d / "calib.yaml").write_text(text + "colour_calibration: auto\n")
+    seq = load_sequence(d)
+    assert seq.calib.colour_auto and seq.calib.colour is None
+    seq.register_colour()
+    assert seq.colour_registration["applied"]
+    assert seq.colour_registration["zoom"] == pytest.approx(ZOOM, abs=REGISTRATION_ZOOM)
+    assert seq.calib.colour[0] == pytest.approx(truth[0], rel=REGISTRATION_ZOOM)
+    (d / "calib.yaml").write_text(text + "colour_calibration: none\n")
+    off = load_sequence(d)
+    off.register_colour()
+    assert off.colour_registration is None and off.calib.colour is None
+
+
+def test_seven_scenes_folders_estimate_unless_told(tmp_path: Path) -> None:
+    """7-Scenes stores unregistered colour and depth: its folders ask for the estimate unless the
+    calibration names the colour camera or says ``none``."""
+    from mslam.datasets.folders import load_7scenes
+
+    img = np.zeros((48, 64, 3), np.uint8)
+    cv2.imwrite(str(tmp_path / "frame-000000.color.png"), img)
+    cv2.imwrite(str(tmp_path / "frame-000000.depth.png"), np.full((48, 64), 1000, np.uint16))
+    base = "width: 64\nheight: 48\ncalibration: [60, 60, 32, 24]\ndepth_scale: 1000\n"
+    for extra, auto in (("", True), ("colour_calibration: none\n", False),
+                        ("colour_calibration: [50, 50, 32, 24]\n", False)):  # fmt: skip
+        (tmp_path / "calib.yaml").write_text(base + extra)
+        assert load_7scenes(tmp_path).calib.colour_auto is auto

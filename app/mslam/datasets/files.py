@@ -14,6 +14,7 @@ Public names, in reading order:
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -90,8 +91,11 @@ class FileSequence(FrameSequence):
         )
         known = [t for t in self._gt if t is not None]
         self.T_WC = np.stack(known) if known and len(known) == len(self._gt) else None
-        self.calib = calib
         self.depth_scale = float(calib.depth_scale if calib and calib.depth_scale else depth_scale)
+        #: The colour-to-depth registration estimated from edges (``Calibration.colour_auto``):
+        #: ``zoom``, ``score``, ``identity_score``, ``applied`` (after :meth:`register_colour`).
+        self.colour_registration: dict[str, float | bool] | None = None
+        self.calib = calib
         self.size = None if size is None else (int(size[0]), int(size[1]))
         self._maps: tuple[np.ndarray, np.ndarray] | None = None
         #: Colour onto the depth camera's grid (``Calibration.colour``), before any resize.
@@ -102,6 +106,29 @@ class FileSequence(FrameSequence):
         self.distortion = None
         if calib is not None:
             self._setup_calibration(calib, undistort, center_principal_point)
+
+    def register_colour(self) -> None:
+        """Resample the colour images onto the depth grid with colour intrinsics estimated from
+        a few frames' edges, when the calibration asks for it (``colour_auto``) and they beat
+        the identity (``mslam.datasets.registration``). A run calls it when it uses the
+        intrinsics (RGB-D prior or ``--calib``); an uncalibrated RGB-only run has no use for
+        images made to agree with intrinsics it ignores. Idempotent."""
+        from mslam.datasets.registration import FRAMES, estimate_colour_intrinsics
+
+        calib = self.calib
+        if calib is None or not calib.colour_auto or self.depth_paths is None:
+            return
+        idx = np.unique(np.linspace(0, len(self.rgb_paths) - 1, FRAMES).round().astype(int))
+        rgbs = [read_rgb(self.rgb_paths[i]) for i in idx]
+        if any(im.shape[:2] != (calib.height, calib.width) for im in rgbs):
+            return  # the size check of _process reports it
+        depths = [read_depth(self.depth_paths[i], self.depth_scale, im.shape[:2])
+                  for i, im in zip(idx, rgbs, strict=True)]  # fmt: skip
+        colour, info = estimate_colour_intrinsics(calib, rgbs, depths)
+        self.colour_registration = {**info, "applied": colour is not None}
+        self.calib = replace(calib, colour=colour, colour_auto=False)
+        if colour is not None:
+            self._colour_maps = colour_registration_maps(self.calib)
 
     def _setup_calibration(self, calib: Calibration, undistort: bool, center: bool) -> None:
         K = calib.K

@@ -19,6 +19,7 @@ Public names, in reading order:
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -78,6 +79,9 @@ def load_7scenes(folder, calib=None, size=None) -> FileSequence:
         from mslam.datasets.readers import read_rgb
 
         cal = _seven_scenes_calib(folder, read_rgb(rgb[0]).shape[:2])
+    if has_depth and cal.colour is None and cal.colour_auto is None:
+        # 7-Scenes stores the Kinect's colour and depth unregistered (docs/priors.md).
+        cal = replace(cal, colour_auto=True)
     # The dataset's own clock: the frame number of the file name at the nominal 30 Hz, so a clip
     # starting at frame-000400 keeps stamps 13.333... and associates with its own ground truth.
     try:

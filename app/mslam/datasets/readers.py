@@ -57,6 +57,10 @@ class Calibration:
             its depth camera, whose intrinsics ``fx, fy, cx, cy`` then are). The colour images
             are resampled onto the depth camera's pixel grid (``colour_registration_maps``),
             so both share ``K``. None when they are registered (TUM) or there is no depth.
+        colour_auto: estimate ``colour`` from the images' edges when the sequence is loaded
+            (``mslam.datasets.registration``): True for ``colour_calibration: auto``, False
+            for ``colour_calibration: none``, None when the file does not say (the loader
+            decides: 7-Scenes folders estimate, others do not).
     """
 
     width: int
@@ -68,6 +72,7 @@ class Calibration:
     distortion: tuple[float, ...] = ()
     depth_scale: float | None = None
     colour: tuple[float, ...] | None = None
+    colour_auto: bool | None = None
 
     @property
     def K(self) -> FloatArray:
@@ -125,8 +130,13 @@ def read_calibration(path: str | Path) -> Calibration:
     if depth_scale is not None and depth_scale <= 0:
         raise ValueError(f"{path}: depth_scale must be positive, got {depth_scale}")
     fx, fy, cx, cy = vals[:4]
-    colour = _colour_intrinsics(path, data.get("colour_calibration"), len(vals) > 4)
-    return Calibration(width, height, fx, fy, cx, cy, tuple(vals[4:]), depth_scale, colour)
+    colour_cal = data.get("colour_calibration")
+    auto = {"auto": True, "none": False}.get(colour_cal) if isinstance(colour_cal, str) else None
+    colour = None if auto is not None else _colour_intrinsics(path, colour_cal, len(vals) > 4)
+    return Calibration(
+        width, height, fx, fy, cx, cy, tuple(vals[4:]), depth_scale, colour,
+        False if colour is not None else auto,
+    )  # fmt: skip
 
 
 def _colour_intrinsics(path: Path, cal: Any, distorted: bool) -> tuple[float, ...] | None:
@@ -142,8 +152,8 @@ def _colour_intrinsics(path: Path, cal: Any, distorted: bool) -> tuple[float, ..
         vals = []
     if len(vals) not in (4, 8, 9) or vals[0] <= 0 or vals[1] <= 0 or not np.all(np.isfinite(vals)):
         raise ValueError(
-            f"{path}: colour_calibration must be [fx, fy, cx, cy(, k1, k2, p1, p2(, k3))], "
-            "fx, fy > 0"
+            f"{path}: colour_calibration must be [fx, fy, cx, cy(, k1, k2, p1, p2(, k3))] with "
+            "fx, fy > 0, 'auto' or 'none'"
         )
     return tuple(vals)
 

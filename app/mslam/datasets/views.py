@@ -25,7 +25,7 @@ __all__ = ["ResizedSequence", "SubsampledSequence", "TruncatedSequence"]
 def _copy_metadata(view: FrameSequence, base: FrameSequence) -> None:
     view.name, view.K = base.name, base.K
     view.has_depth, view.distortion = base.has_depth, base.distortion
-    for attr in ("width", "height"):
+    for attr in ("width", "height", "colour_registration"):
         if hasattr(base, attr):
             setattr(view, attr, getattr(base, attr))
 

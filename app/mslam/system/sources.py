@@ -132,6 +132,8 @@ def open_source(
         )
     if prior_name == "synthetic" and (seq.T_WC is None or seq.K is None):
         raise ValueError(f"{source}: the synthetic prior needs ground-truth poses and intrinsics")
+    if (use_calib or prior_name == "rgbd") and hasattr(seq, "register_colour"):
+        seq.register_colour()  # colour not registered to depth (7-Scenes folders)
     if prior_name == "twoview" and getattr(seq, "depth_paths", None) is not None:
         seq.depth_paths, seq.has_depth = None, False  # RGB only: no depth file is ever read
     if cfg.dataset.subsample > 1:
