@@ -12,8 +12,8 @@ from mslam.datasets.synthetic import make_sequence
 from mslam.priors.base import check_prediction
 from mslam.priors.rgbd import FAILED_Q
 from mslam.priors.twoview import TwoViewPrior, TwoViewPriorConfig
+from mslam.priors.twoview_dis import dense_flow
 from mslam.priors.twoview_geometry import (
-    dense_flow,
     essential_pose,
     focal_guess_intrinsics,
     forward_backward_error,

@@ -35,7 +35,7 @@ For RGB-only input without a network (image folders, videos, the RGB stream of T
    descriptors of the RGB-D prior (``descriptors.patch_descriptors``, ``descriptor_Q``).
 
 Intrinsics: ``K`` when calibrated (``--calib``), else :func:`focal_guess_intrinsics` (60°
-horizontal field of view). The SLAM system never sees this guess: in uncalibrated mode it only
+across the long side). The SLAM system never sees this guess: in uncalibrated mode it only
 uses the pointmaps, exactly as with MASt3R. The camera's own K gives pairs closer to the truth
 than the guess (synthetic loop, tests/app/test_twoview_intrinsics.py). A K of another camera
 (the 7-Scenes file is the depth camera's, fx = 585 at 640 px; the colour images fit ~520) gave
