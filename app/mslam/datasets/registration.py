@@ -26,6 +26,7 @@ Public names: estimate_colour_intrinsics, edge_score
 from __future__ import annotations
 
 from dataclasses import replace
+from functools import cache
 from typing import Any
 
 import cv2
@@ -108,6 +109,7 @@ def estimate_colour_intrinsics(
         if valid.mean() > 0.2:
             data.append((_edges(log_z), valid, grey))
 
+    @cache  # the fine search revisits the coarse best, and the best is read once more
     def score(s: float) -> float:
         maps = colour_registration_maps(
             _small(calib, (s * calib.fx, s * calib.fy, calib.cx, calib.cy))
