@@ -231,10 +231,12 @@ fig.tight_layout()
 plt.show()
 
 # %% [markdown]
-# On the full 150-frame clip at 160x120 (measured 2026-11-26, benchmarks/RESULTS.md "Monocular
-# RGB on unseen video: maps that rejoin") the RGB-only map scores a chamfer of 14.4 cm with 0.08 %
-# of its points far (9.4 cm once registered by ICP), the RGB-D map 8.8 cm — and 1.5 cm once registered: the RGB-D map itself
-# is tight, its trajectory alignment is not. How much of that is the alignment alone?
+# On the full 150-frame clip at 160x120 (measured 2026-11-27, benchmarks/RESULTS.md "Pure
+# rotation recognised for any focal length, and the full-resolution flow") the RGB-only map
+# scores a chamfer of 10.8 cm with 0.99 % of its points far (6.5 cm once registered by ICP),
+# the RGB-D map 9.8 cm — and 1.2 cm once registered (RESULTS "Colour registered to depth from
+# edges"): the RGB-D map itself is tight, its trajectory alignment is not. How much of that is
+# the alignment alone?
 # docs/evaluation.md moves the *true* cloud by the Sim(3) fitted to a noisy copy of the true
 # path: with a drift-shaped trajectory error of 1.6 cm (this clip's RGB-D ATE) a perfect map
 # scores 7.1 cm, because the path is 1.07 m long and only 1 cm thick across its plane, so the

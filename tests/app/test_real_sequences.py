@@ -137,11 +137,12 @@ def test_detour_relocalises_at_the_return_frame(fast64) -> None:
 
 
 def test_lost_spans_and_health_report() -> None:
-    st = ["keyframe", "tracked", "lost", "lost", "relocalised", "tracked", "lost"]
+    st = ["keyframe", "tracked", "lost", "lost", "relocalised", "rotation", "lost"]
     poses = [SimpleNamespace(index=i, status=s) for i, s in enumerate(st)]
     assert lost_spans(poses) == [[2, 3], [6, 6]]
     r = health_report(poses, 7, 4, "rgbd", {"scale": 1.0})
     assert r["relocalised_at"] == [4] and r["frames_posed_fraction"] == pytest.approx(4 / 7)
+    assert r["frames_posed_by_rotation"] == 1
     assert not r["plausible"] and "4 of 7 frames" in r["warnings"][0]
     ok = health_report(poses[:2], 2, 2, "rgbd", {"scale": 1.02})
     assert ok["plausible"]

@@ -12,8 +12,8 @@ from mslam.datasets.synthetic import make_sequence
 from mslam.priors.base import check_prediction
 from mslam.priors.rgbd import FAILED_Q
 from mslam.priors.twoview import TwoViewPrior, TwoViewPriorConfig
+from mslam.priors.twoview_dis import dense_flow
 from mslam.priors.twoview_geometry import (
-    dense_flow,
     essential_pose,
     focal_guess_intrinsics,
     forward_backward_error,
@@ -266,10 +266,3 @@ def test_cli_runs_a_video_with_the_twoview_prior(seq, tmp_path):
     s = json.loads((out / "summary.json").read_text())
     assert s["prior"] == "twoview" and s["frames"] == 6
     assert s["frames_with_pose"] >= 4
-
-
-def test_focal_guess_spans_the_long_side() -> None:
-    """A portrait frame is a landscape camera turned upright: the same focal length."""
-    land, port = focal_guess_intrinsics(160, 120), focal_guess_intrinsics(120, 160)
-    assert port[0, 0] == port[1, 1] == land[0, 0]
-    assert (port[0, 2], port[1, 2]) == (land[1, 2], land[0, 2])

@@ -10,6 +10,7 @@ from tolerances import FLOW_PX
 
 from mslam.datasets.synthetic import make_sequence
 from mslam.priors.twoview import TwoViewPrior, TwoViewPriorConfig
+from mslam.priors.twoview_dis import dense_flow
 from mslam.priors.twoview_flow import (
     GuideConfig,
     consistent_share,
@@ -19,7 +20,6 @@ from mslam.priors.twoview_flow import (
     sift_keypoints,
     sparse_matches,
 )
-from mslam.priors.twoview_geometry import dense_flow
 from mslam.priors.twoview_planar import choose_pose, pose_candidates
 from mslam_ref import sim3, so3
 from mslam_ref.pointmap import intrinsics_from_fov

@@ -12,7 +12,7 @@ breaks the gain model), ``g = exp(median(log(grey_j(u + F_ij(u)) / grey_i(u))))`
 ``|log g| > GAIN_TOL`` the two images are brought to a common exposure, the gain split evenly
 (``grey_i · √g`` and ``grey_j / √g``, so that swapping the images swaps the results), the flow
 is computed again, and the more self-consistent of the two flows is kept
-(:func:`mslam.priors.twoview_geometry.dense_flow`); otherwise the first flow stands, unchanged.
+(:func:`mslam.priors.twoview_dis.dense_flow`); otherwise the first flow stands, unchanged.
 
 Measured on the 7-Scenes kitchen clip at 160x120 (2026-11-26). Pairs four frames apart with
 the gain swinging between 1/2 and 2 over 60 frames (``benchmarks/hard_variants.py``,

@@ -35,19 +35,16 @@ For RGB-only input without a network (image folders, videos, the RGB stream of T
    descriptors of the RGB-D prior (``descriptors.patch_descriptors``, ``descriptor_Q``).
 
 Intrinsics: ``K`` when calibrated (``--calib``), else :func:`focal_guess_intrinsics` (60°
-across the long side). The SLAM system never sees this guess: in uncalibrated mode it only
-uses the pointmaps, exactly as with MASt3R. The camera's own K gives pairs closer to the truth
-than the guess (synthetic loop, tests/app/test_twoview_intrinsics.py). A K of another camera
-(the 7-Scenes file is the depth camera's, fx = 585 at 640 px; the colour images fit ~520) gave
-the same per-pair rotation, translation and depth errors as the guess and as fx = 525; a whole
-run's ATE moves by up to 1 cm under 1-3 % focal changes in either mode (2026-11-26, kitchen clip:
-calibrated fx 560-590 2.6-3.5 cm, uncalibrated field of view 59.5-62° 2.6-3.8 cm).
+across the long side), which the SLAM system never sees: uncalibrated, it only uses the
+pointmaps, as with MASt3R. Uncalibrated, a pair is without parallax when its flow is a
+rotation for *some* focal length (``focal_free_parallax``, :mod:`twoview_homography`). A whole
+run's ATE moves by up to 1 cm under 1-3 % focal changes (docs/priors.md).
 
-``mono(i)``: one image has no parallax, so there is no honest depth. The prior returns the
-most recent non-degenerate two-view pointmap it computed for that image (as i or as j, in its
-own camera, normalised) when it has one, else a fronto-parallel plane at distance 1 with
-``C = 1``. The frontend therefore does not start from ``mono`` with this prior
-(``needs_parallax = True``): it waits for the first pair with enough parallax (docs/priors.md).
+``mono(i)``: one image has no parallax, so there is no honest depth: the most recent
+non-degenerate two-view pointmap of that image (as i or as j, in its own camera, normalised)
+when there is one, else a fronto-parallel plane at distance 1 with ``C = 1``. The frontend
+does not start from ``mono`` with this prior (``needs_parallax = True``): it waits for the
+first pair with parallax, or starts under pure rotation (:mod:`mslam.system.rotation_start`).
 
 ``last_status`` is ``"ok"``, ``"same"`` (i is j), ``"few_inliers"`` or ``"parallax"``;
 ``last_info`` has the inlier count, the homography parallax (pixels), the median
@@ -82,11 +79,11 @@ from mslam.priors.twoview_geometry import (
     flow_consistency,
     focal_guess_intrinsics,
     forward_backward_error,
-    homography_parallax,
     refine_pose,
     reprojection_error,
     triangulate_midpoint,
 )
+from mslam.priors.twoview_homography import homography_fit, homography_rotation
 from mslam.priors.twoview_planar import choose_pose, pose_candidates
 from mslam_ref.conventions import FloatArray
 from mslam_ref.pointmap import backproject, scale_intrinsics
@@ -108,13 +105,8 @@ class TwoViewPriorConfig:
             is lower is degenerate too (DIS breaks down under large motion and still returns
             a few hundred self-consistent vectors).
         min_parallax_px: homography parallax (pixels) below which a pair is degenerate. On
-            the 7-Scenes kitchen clip (160x120, K of its calibration file, pairs 1-6 frames
-            apart, 2026-11-26) the translation direction of pairs with 0.5-1 px is off by a
-            median 39° from the ground truth (16° at 1-1.5 px): DIS flow noise, not
-            geometry; their depths are noise too. Whole runs, calibrated / uncalibrated ATE
-            in cm at 1 px against 0.5 px: forward 2.59 / 2.66 against 2.85 / 2.60, backwards
-            2.74 / 2.84 against 2.78 / 3.49, every 2nd frame 2.59 / 2.82 against 3.03 / 2.86;
-            the synthetic loop is the same at both (9.05 / 20.2: its pairs have > 1.5 px).
+            the 7-Scenes kitchen clip (2026-11-26) the translation direction of pairs with
+            0.5-1 px was off by a median 39° (16° at 1-1.5 px): flow noise, not geometry.
         max_reproj_px: triangulated pixels reprojecting worse than this are not used.
         conf_max: ``C - 1`` of a perfect pixel.
         angle_sigma_deg, reproj_sigma, fb_sigma: scales of ``w_θ`` (degrees), ``w_r``, ``w_fb``
@@ -129,6 +121,9 @@ class TwoViewPriorConfig:
             of the scene, so depths of two pairs need not agree even for the right pose
             (measured on the synthetic loop: ATE 2.1 % without, 3.4 % with it).
         ambiguity: cost ratio under which hypotheses count as indistinguishable.
+        focal_free_parallax: uncalibrated, a pair whose flow is a rotation for *some* focal
+            length has no parallax, and its rotation is the homography's at that focal length
+            (:mod:`mslam.priors.twoview_homography`).
         guide: sparse-feature seeding of the flow for pairs beyond DIS's range
             (:mod:`mslam.priors.twoview_flow`).
     """
@@ -152,6 +147,7 @@ class TwoViewPriorConfig:
     planar_candidates: bool = True
     third_view: bool = True
     ambiguity: float = 1.5
+    focal_free_parallax: bool = True
 
     def __post_init__(self) -> None:
         positive = (
@@ -371,7 +367,11 @@ class TwoViewPrior:
             R, t = refine_pose(uv_i[inl], uv_j[inl], K, R, t)  # on all inliers
         else:
             R, t = refine_pose(uv_i[inl], uv_j[inl], K, R, t)
-        parallax = homography_parallax(uv_i, uv_j, K, self.cfg.ransac_px)
+        focal_free = self.K is None and self.cfg.focal_free_parallax
+        fit = homography_fit(uv_i, uv_j, K, self.cfg.ransac_px, focal_free=focal_free)
+        parallax = fit.parallax_px
+        if focal_free and fit.H is not None and parallax < self.cfg.min_parallax_px:
+            R = homography_rotation(fit.H, K, fit.focal_px)  # the rotation of some camera
         _, angle, ok = triangulate_midpoint(uv_i[inl], uv_j[inl], K, R, t)
         angle_deg = float(np.degrees(np.median(np.where(ok, angle, 0.0))))
         return R, t, int(inl.sum()), parallax, angle_deg, ambiguous

@@ -39,7 +39,8 @@ import cv2
 import numpy as np
 
 from mslam.priors.keypoints import ratio_matches
-from mslam.priors.twoview_geometry import _grey, dense_flow, forward_backward_error
+from mslam.priors.twoview_dis import _grey, dense_flow
+from mslam.priors.twoview_geometry import forward_backward_error
 from mslam_ref.conventions import FloatArray
 
 __all__ = [

@@ -2,8 +2,8 @@
 
 The maths of :mod:`mslam.priors.twoview`, image pair (i, j) with intrinsics K:
 
-* dense correspondences ``u_j = u_i + F_ij(u_i)`` from OpenCV's DIS optical flow, checked
-  forward–backward: ``e_fb(u_i) = ‖F_ij(u_i) + F_ji(u_i + F_ij(u_i))‖`` (pixels);
+* dense correspondences ``u_j = u_i + F_ij(u_i)`` from OpenCV's DIS optical flow
+  (:mod:`mslam.priors.twoview_dis`), checked forward–backward: ``e_fb(u_i) = ‖F_ij(u_i) + F_ji(u_i + F_ij(u_i))‖`` (pixels);
 * the essential matrix ``x_jᵀ E x_i = 0`` (``x = K⁻¹[u, 1]``) by RANSAC on a subsample of the
   consistent correspondences, decomposed into ``X_j = R_ji X_i + t_ji`` with ``‖t_ji‖ = 1``
   (cheirality decides among the four solutions);
@@ -16,7 +16,7 @@ The maths of :mod:`mslam.priors.twoview`, image pair (i, j) with intrinsics K:
   rotation (a plane seen from two centres). Pure rotation and a tiny baseline give ~0 for both.
 
 Public names, in reading order:
-    focal_guess_intrinsics, dense_flow, forward_backward_error, symmetric_flow, flow_consistency,
+    focal_guess_intrinsics, forward_backward_error, symmetric_flow, flow_consistency,
     essential_pose, sampson_residuals, refine_pose, homography_parallax, triangulate_midpoint, reprojection_error
 """
 
@@ -25,12 +25,11 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from mslam.priors import photometric
+from mslam.priors.twoview_homography import homography_parallax
 from mslam_ref.conventions import FloatArray
 from mslam_ref.pointmap import intrinsics_from_fov
 
 __all__ = [
-    "dense_flow",
     "essential_pose",
     "focal_guess_intrinsics",
     "forward_backward_error",
@@ -49,83 +48,26 @@ GUESS_FOV_DEG = 60.0
 
 
 def focal_guess_intrinsics(width: int, height: int, fov_deg: float = GUESS_FOV_DEG) -> FloatArray:
-    """Pinhole K of an uncalibrated camera: ``f = (L / 2) / tan(fov / 2)``, L the long side.
+    """Pinhole K of an uncalibrated camera: ``f = (L / 2) / tan(fov / 2)`` with L the image's
+    long side, centred.
 
-    A field of view belongs to the sensor's long side: across the width of portrait frames (a
-    phone held upright) the focal length came out a third too short (docs/priors.md).
-    ``width, height`` >= 2 pixels; ``fov_deg`` across the long side (60°: ``f ≈ 0.866 L``).
-    Returns (3, 3) float64, ``cx = (W - 1) / 2``, ``cy = (H - 1) / 2``, square pixels.
+    A camera's field of view belongs to its sensor's long side: a phone held upright films
+    portrait frames whose *width* is the short side, and a guess across the width would make
+    its focal length a third too short (the 7-Scenes clip turned upright: 104 px against about
+    131 at 120x160; measured 2026-11-27, RGB-only ATE 5.3 cm with the guess across the width,
+    see docs/priors.md). Landscape frames are unchanged.
+
+    Args:
+        width, height: image size in pixels (>= 2).
+        fov_deg: assumed field of view across the long side (default 60°: ``f ≈ 0.866 L``).
+
+    Returns:
+        (3, 3) float64, ``cx = (W - 1) / 2``, ``cy = (H - 1) / 2``, square pixels.
     """
     K = intrinsics_from_fov(width, height, fov_deg)
     if height > width:
         K[0, 0] = K[1, 1] = K[0, 0] * height / width
     return K
-
-
-def _grey(rgb: np.ndarray) -> np.ndarray:
-    rgb = np.asarray(rgb)
-    if rgb.dtype != np.uint8 or rgb.ndim != 3 or rgb.shape[2] != 3:
-        raise ValueError(f"rgb: expected uint8 (H, W, 3), got {rgb.dtype} {rgb.shape}")
-    return cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
-
-
-def dense_flow(
-    rgb_i: np.ndarray,
-    rgb_j: np.ndarray,
-    init_ij: FloatArray | None = None,
-    init_ji: FloatArray | None = None,
-) -> tuple[FloatArray, FloatArray]:
-    """Forward and backward DIS optical flow (preset MEDIUM) between two RGB images.
-
-    DIS compares grey levels, so a gain between the images (auto-exposure) biases the flow:
-    when the flow measures one (:func:`mslam.priors.photometric.exposure_gain`, beyond
-    ``GAIN_TOL``), the two images are brought to a common exposure and the flow computed
-    again, and the flow with the larger share of forward–backward errors below
-    ``GAIN_FB_PX`` is returned (the first one on a tie).
-
-    Args:
-        rgb_i, rgb_j: (H, W, 3) uint8 images of the same size.
-        init_ij, init_ji: optional (H, W, 2) initial flows (DIS refines them instead of
-            starting from zero; ``mslam.priors.twoview_flow`` seeds them from sparse matches).
-
-    Returns:
-        F_ij: (H, W, 2) float64, pixel ``u`` of i corresponds to ``u + F_ij(u)`` in j;
-        F_ji: (H, W, 2) float64, the reverse.
-    """
-    gi, gj = _grey(rgb_i), _grey(rgb_j)
-    if gi.shape != gj.shape:
-        raise ValueError(f"rgb_j: size {gj.shape} differs from rgb_i {gi.shape}")
-    F_ij, F_ji = _dis_both_ways(gi, gj, init_ij, init_ji)
-    e_fb, _ = forward_backward_error(F_ij, F_ji)
-    gain = photometric.exposure_gain(gi, gj, F_ij, e_fb)
-    if abs(np.log(gain)) <= photometric.GAIN_TOL:
-        return F_ij, F_ji
-    ai, aj = photometric.common_exposure(gi, gj, gain)
-    G_ij, G_ji = _dis_both_ways(ai, aj, init_ij, init_ji)
-    e_aligned, _ = forward_backward_error(G_ij, G_ji)
-    # The aligned flow replaces the first only when it is the more self-consistent one.
-    if np.mean(e_aligned < photometric.GAIN_FB_PX) > np.mean(e_fb < photometric.GAIN_FB_PX):
-        return G_ij, G_ji
-    return F_ij, F_ji
-
-
-def _dis_both_ways(
-    gi: np.ndarray, gj: np.ndarray, init_ij: FloatArray | None, init_ji: FloatArray | None
-) -> tuple[FloatArray, FloatArray]:
-    """DIS flow (preset MEDIUM) from grey ``gi`` to ``gj`` and back, each from its optional
-    initial flow; (H, W, 2) float64 each."""
-    out = []
-    for a, b, init in ((gi, gj, init_ij), (gj, gi, init_ji)):
-        dis = cv2.DISOpticalFlow.create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
-        if init is None:
-            # OpenCV takes None for "no initial flow"; its type stubs do not say so.
-            out.append(dis.calc(a, b, None).astype(np.float64))  # type: ignore[call-overload]
-        else:
-            flow = np.array(init, dtype=np.float32, order="C")  # DIS refines it in place
-            if flow.shape != (*gi.shape, 2):
-                raise ValueError(f"init: expected {(*gi.shape, 2)}, got {flow.shape}")
-            out.append(dis.calc(a, b, flow).astype(np.float64))
-    return out[0], out[1]
 
 
 def _grid(H: int, W: int) -> FloatArray:
@@ -297,50 +239,6 @@ def refine_pose(
     if p is None:
         return R_ji, t0
     return unpack(p)
-
-
-def homography_parallax(
-    uv_i: FloatArray,
-    uv_j: FloatArray,
-    K: FloatArray,
-    ransac_px: float = 1.0,
-    plane_margin_px: float = 1.0,
-) -> float:
-    """Parallax of a pair in pixels: how far the flow is from a pure rotation.
-
-    The best homography H (RANSAC) explains the flow of a pure rotation
-    (``K⁻¹ H K = R``), of a tiny baseline, and of a plane seen from two centres
-    (``K⁻¹ H K = R + t nᵀ/d``). Two terms, the larger is returned:
-
-    * off-homography parallax: 90th percentile of ``‖u_j - H u_i‖`` (a non-planar scene);
-    * plane parallax: ``f · (σ₁ - σ₃) / σ₂ - plane_margin_px`` with σ the singular values of
-      ``K⁻¹ H K``, which are equal for a rotation and differ by about ``‖t‖/d`` for a plane at
-      distance d. H fitted to DIS flow is noisy at the image borders: a pure 3° rotation at
-      128x96 gives ``f · (σ₁ - σ₃) / σ₂ ≈ 0.6 px``, hence the margin.
-
-    Args:
-        uv_i, uv_j: (N, 2) corresponding pixels (N >= 4; fewer gives 0).
-        K: (3, 3) intrinsics (the focal-length guess when uncalibrated).
-
-    Returns:
-        pixels (0 when no homography can be fitted).
-    """
-    uv_i = np.ascontiguousarray(uv_i, dtype=np.float64).reshape(-1, 2)
-    uv_j = np.ascontiguousarray(uv_j, dtype=np.float64).reshape(-1, 2)
-    if len(uv_i) < 4:
-        return 0.0
-    try:
-        H, _ = cv2.findHomography(uv_i, uv_j, cv2.RANSAC, ransac_px)
-    except cv2.error:
-        return 0.0
-    if H is None or not np.all(np.isfinite(H)):
-        return 0.0
-    p = np.hstack([uv_i, np.ones((len(uv_i), 1))]) @ H.T
-    w = np.where(np.abs(p[:, 2:]) > 1e-12, p[:, 2:], 1e-12)
-    off_plane = float(np.percentile(np.linalg.norm(p[:, :2] / w - uv_j, axis=1), 90))
-    sv = np.linalg.svd(np.linalg.inv(K) @ H @ K, compute_uv=False)
-    plane = float(0.5 * (K[0, 0] + K[1, 1]) * (sv[0] - sv[2]) / max(sv[1], 1e-12))
-    return max(off_plane, plane - plane_margin_px)
 
 
 def triangulate_midpoint(

@@ -9,7 +9,9 @@ top-down in :meth:`SlamSystem.step`:
   the first frame as a candidate and fixes it as keyframe 0, with ``X_ii`` of
   ``prior.pair(candidate, frame)``, at the first frame whose pairs with it are not degenerate
   (``prior.last_status == "ok"``); that frame becomes keyframe 1 and the frames in between
-  are then tracked against the two (status ``WAITING`` until then).
+  are then tracked against the two (status ``WAITING`` until then). A camera that only turns
+  never gives that pair: when the candidate's view is out of sight, the map starts without
+  depth from the waiting frames' rotations (:mod:`mslam.system.rotation_start`).
 * **TRACKING** — the pair with the last keyframe, then :meth:`Tracker.track
   <mslam.system.tracker.Tracker.track>` (matching, masks, Gauss–Newton, fusion, the
   new-keyframe test). Too few matches or a failed solve switch to RELOC. When the pair with the
@@ -60,6 +62,7 @@ from mslam.system.parallax import ParallaxSteps, TrackedFrame, rotation_pose
 from mslam.system.recovery import Recovery, RecoveryConfig, frame_contrast
 from mslam.system.reloc import relocalise
 from mslam.system.retrieval_features import RetrievalIndex
+from mslam.system.rotation_start import RotationStart
 from mslam.system.state import FramePose, FrameStatus, Mode, RunStats
 from mslam.system.tracker import Tracker
 from mslam.system.worker import BackendWorker, SharedPrior
@@ -69,7 +72,7 @@ from mslam_ref.conventions import FloatArray
 __all__ = ["SlamSystem"]
 
 
-class SlamSystem(ParallaxSteps):
+class SlamSystem(ParallaxSteps, RotationStart):
     """The SLAM system of one run: the frontend's state machine over the map (``backend``).
 
     Args:
@@ -100,6 +103,7 @@ class SlamSystem(ParallaxSteps):
         self.poses: list[FramePose] = []
         self.init_candidate: Frame | None = None
         self.init_pending: list[Frame] = []
+        self.init_rotations: dict[int, tuple[FloatArray, PairPrediction]] = {}
         self.last_tracked: TrackedFrame | None = None
         self.tracking_pair: tuple[int, int, PairPrediction] | None = None
         from threadpoolctl import ThreadpoolController
@@ -177,7 +181,7 @@ class SlamSystem(ParallaxSteps):
         self.divergence.new_map()
         self.merger.reset()
         self.tracker.idx_f2k, self.last_tracked = None, None
-        self.init_candidate, self.init_pending = None, []
+        self.init_candidate, self.init_pending, self.init_rotations = None, [], {}
         self.mode = Mode.INIT
 
     def init_mono(self, frame: Frame) -> FrameStatus:
@@ -197,7 +201,10 @@ class SlamSystem(ParallaxSteps):
         self.stats.reloc_attempts += 1
         self.wait_for_backend()
         with self.stats.timer("reloc"):
-            ok = relocalise(frame, self.prior, self.backend, self.cfg.reloc, self.place_relocalised)
+            ok = relocalise(
+                frame, self.prior, self.backend, self.cfg.reloc, self.place_relocalised,
+                self.rotation_match if getattr(self.prior, "needs_parallax", False) else None,
+            )  # fmt: skip
         if not ok:
             self.stats.lost_frames += 1
             self.record(frame, -1, None, FrameStatus.LOST)
@@ -238,6 +245,7 @@ class SlamSystem(ParallaxSteps):
                 self.record(frame, -1, None, FrameStatus.LOST)
             return FrameStatus.LOST if rotated is None else rotated
         kf_idx, p, fallback = pair.kf_idx, pair.p, pair.fallback
+        self.seed_depth(kf_idx, frame)  # a keyframe made under pure rotation (rotation_start)
         kf = self.keyframes[kf_idx]
         self.tracking_pair = (int(frame.index), int(kf.frame.index), p)
         result = self.tracker.track(
@@ -323,7 +331,10 @@ class SlamSystem(ParallaxSteps):
             self.worker.drain()
 
     def close(self) -> None:
-        """Finish the queued backend work and stop the worker (the end of a run)."""
+        """Pose the frames still waiting for parallax by rotation when they can be
+        (``RotationStart.finish_waiting``), finish the queued backend work and stop the worker
+        (the end of a run)."""
+        self.finish_waiting()
         if self.worker is not None:
             self.worker.close()
 

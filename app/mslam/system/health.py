@@ -7,6 +7,8 @@ in ``summary.json`` and on the console:
 * the fraction of frames with a pose (``frames_posed_fraction``) and the spans of frames seen
   while lost (``lost_spans``: ``[first, last]`` frame indices, inclusive);
 * the frames where relocalisation succeeded (``relocalised_at``);
+* the frames posed by rotation alone (``frames_posed_by_rotation``: the two-view prior's frames
+  without parallax, at their keyframe's centre; all of a pure pan's frames);
 * ``warnings``: one sentence per reason to distrust the run, and ``plausible`` (no warning).
 
 A run is flagged when fewer than :data:`MIN_POSED_FRACTION` of its frames have a pose, and when
@@ -74,8 +76,8 @@ def health_report(
         prior: the prior's name; ate: ``AteResult.to_dict()`` of the run, or None.
 
     Returns:
-        ``frames_posed_fraction``, ``lost_spans``, ``relocalised_at``, ``warnings``,
-        ``plausible``.
+        ``frames_posed_fraction``, ``lost_spans``, ``relocalised_at``,
+        ``frames_posed_by_rotation``, ``warnings``, ``plausible``.
     """
     frac = posed / frames if frames else 0.0
     warnings = []
@@ -95,6 +97,7 @@ def health_report(
         "frames_posed_fraction": frac,
         "lost_spans": lost_spans(poses),
         "relocalised_at": relocalised_at(poses),
+        "frames_posed_by_rotation": sum(p.status == "rotation" for p in poses),
         "warnings": warnings,
         "plausible": not warnings,
     }

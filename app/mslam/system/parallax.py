@@ -4,7 +4,8 @@ The two-view prior (``mslam.priors.twoview``) has no depth from one image, so th
 (:class:`~mslam.system.frontend.SlamSystem`, which inherits :class:`ParallaxSteps`) must treat
 pairs without parallax apart:
 
-* INIT waits for a first pair with parallax (:meth:`ParallaxSteps.init_with_parallax`);
+* INIT waits for a first pair with parallax (:meth:`ParallaxSteps.init_with_parallax`), or
+  starts without depth under pure rotation (:mod:`mslam.system.rotation_start`);
 * a pair is *without parallax* when the prior says so (``last_status == "parallax"``) or when
   its median triangulation angle θ (``last_info["angle_deg"]``), as pixels of parallax
   ``f · θ`` through the focal length of the pair's pointmap (:func:`parallax_px`), is below
@@ -181,11 +182,13 @@ class ParallaxSteps:
     poses: list[FramePose]
     init_candidate: Frame | None
     init_pending: list[Frame]
+    init_rotations: dict[int, tuple[FloatArray, PairPrediction]]
     last_tracked: TrackedFrame | None
     record: Callable[..., None]
     track: Callable[..., FrameStatus]
     make_keyframe: Callable[..., int]
     lose_tracking: Callable[[], None]
+    start_by_rotation: Callable[[Frame | None], FrameStatus | None]
 
     def pair_status(self, p: PairPrediction) -> str:
         """The prior's verdict on its last pair ``p``, ``"parallax"`` also for an ``"ok"`` pair
@@ -212,22 +215,28 @@ class ParallaxSteps:
         """
         cand = self.init_candidate
         if cand is None:
-            self.init_candidate, self.init_pending = frame, []
+            self.init_candidate, self.init_pending, self.init_rotations = frame, [], {}
             return FrameStatus.WAITING
         with self.stats.timer("prior"):
-            self.prior.pair(frame, cand)  # the direction tracking uses must be usable too
+            p_fc = self.prior.pair(frame, cand)  # the direction tracking uses must be usable too
             status = prior_status(self.prior)
+            R_fc = getattr(self.prior, "last_R_ji", None) if status == "parallax" else None
             p = self.prior.pair(cand, frame) if status == "ok" else None
         if p is not None:
             status = prior_status(self.prior)
         if p is None or status != "ok":
-            if status == "few_inliers":  # too far apart to match: start again from here
-                for f in [cand, *self.init_pending]:
+            if status == "few_inliers":  # too far apart to match
+                started = self.start_by_rotation(frame)  # the waiting frames turned: start
+                if started is not None:
+                    return started
+                for f in [cand, *self.init_pending]:  # else start again from here
                     self.stats.lost_frames += 1
                     self.record(f, -1, None, FrameStatus.LOST)
-                self.init_candidate, self.init_pending = frame, []
+                self.init_candidate, self.init_pending, self.init_rotations = frame, [], {}
             else:
                 self.init_pending.append(frame)
+                if R_fc is not None:  # turned from the candidate (module rotation_start)
+                    self.init_rotations[int(frame.index)] = (np.asarray(R_fc), p_fc)
             return FrameStatus.WAITING
         k = self.backend.add_keyframe(cand, self.anchor, p.X_ii, p.C_ii, p.D_ii, p.Q_ii)
         self.backend.retrieval.update(self.backend.keyframes[k].retrieval_features())
@@ -243,7 +252,7 @@ class ParallaxSteps:
                 if self.track(f, allow_keyframe=False) == FrameStatus.LOST:
                     self.stats.lost_frames += 1
             self.T_WC_last, self.tracker.idx_f2k = T_last, None
-        self.init_candidate, self.init_pending = None, []
+        self.init_candidate, self.init_pending, self.init_rotations = None, [], {}
         return result
 
     def keyframe_pair(self, frame: Frame) -> KeyframePair:

@@ -24,6 +24,11 @@ first: on ``synthetic:rotation:60`` (96x72, two-view prior, tracking given up af
 the strict rule refused every frame until a new map started 55° off; without it frame 31 was
 relocalised 3.3° from its true orientation (2026-11-26).
 
+A keyframe made under pure rotation has no depth (``mslam.system.rotation_start``), so no
+edge to it can be verified; when no edge is accepted, a candidate without depth whose pair
+with the frame is a rotation (the prior's ``"parallax"`` verdict with a rotation) is accepted,
+and the frame is placed by that rotation about the candidate's centre.
+
 Public names, in reading order:
     relocalise
 """
@@ -47,6 +52,7 @@ def relocalise(
     backend: Backend,
     cfg: RelocConfig,
     place: Callable[[int, int], None] | None = None,
+    rotation_match: Callable[[int, int], bool] | None = None,
 ) -> bool:
     """Try to relocalise ``frame``; True (and a new keyframe, the last one) on success.
 
@@ -59,6 +65,9 @@ def relocalise(
         cfg: ``reloc.*`` (``min_match_frac``; ``strict``: the best-ranked candidate must pass).
         place: ``(new keyframe, best candidate) -> None``, run before the solve, may replace
             the copied pose and the pointmap (``ParallaxSteps.place_relocalised``).
+        rotation_match: ``(new keyframe, candidate) -> bool``, asked in ranking order when no
+            edge is accepted: the first candidate it accepts is (a keyframe without depth,
+            whose image the frame's is turned from: ``RotationStart.rotation_match``).
 
     Returns:
         whether the frame was relocalised.
@@ -83,6 +92,8 @@ def relocalise(
         verify=backend.loop_verifier(check_rotation=False),
     )
     accepted = [e.j for e in backend.graph.edges[before:]]
+    if not accepted and rotation_match is not None:
+        accepted = next(([c] for c in candidates if rotation_match(n, c)), [])
     if not accepted or (cfg.strict and candidates[0] not in accepted):
         backend.remove_last_keyframe()
         return False
