@@ -4,9 +4,9 @@ For RGB-only input without a network (image folders, videos, the RGB stream of T
 ``pair(i, j)`` reconstructs both images in camera i from the images alone
 (:mod:`mslam.priors.twoview_geometry` has the maths):
 
-1. dense flow ``F_ij``, ``F_ji`` (DIS) with a forward–backward check (``fb_px``), seeded by a
-   SIFT homography when that is more consistent (:mod:`mslam.priors.twoview_flow`: DIS alone
-   follows only ~10-15 px at 160x120, which excluded every loop-closure pair);
+1. dense flow ``F_ij``, ``F_ji`` (DIS at half or full resolution, :mod:`twoview_dis`) with a
+   forward–backward check (``fb_px``), seeded by a SIFT homography when that is more
+   consistent (:mod:`mslam.priors.twoview_flow`: DIS alone follows ~10-15 px at 160x120);
 2. relative pose ``X_j = R_ji X_i + t_ji`` from the essential matrix (RANSAC on at most
    ``max_ransac_points`` correspondences on a regular grid with forward–backward error below
    ``pose_fb_px``), refined on all its inliers (robust Sampson least squares), together with

@@ -70,36 +70,23 @@ class RotationStart:
     lose_tracking: Callable[[], None]
     pair_status: Callable[[PairPrediction], str]
 
-    #: The status of a waiting frame whose image is the candidate's: posed at its pose.
-    STILL = FrameStatus.ROTATION
-
     def start_by_rotation(self, frame: Frame | None) -> FrameStatus | None:
         """Start the map from the waiting candidate without depth (module docstring) when
         some waiting frames were posed by rotation; returns the status of ``frame`` (tracked
         after them; ``ROTATION`` when ``frame`` is None: the sequence ended), or None (nothing
         started) when none was."""
-        cand, rotations = self.init_candidate, self.init_rotations
-        if cand is None or not any(f.index in rotations for f in self.init_pending):
+        cand = self.init_candidate
+        if cand is None or not any(f.index in self.init_rotations for f in self.init_pending):
             return None
         with self.stats.timer("prior"):
             X, C = self.prior.mono(cand)
             p = self.prior.pair(cand, cand)
         k = self.backend.add_keyframe(cand, self.anchor, X, C, p.D_ii, p.Q_ii)
         self.backend.retrieval.update(self.backend.keyframes[k].retrieval_features())
-        T_W0 = self.backend.keyframes[k].T_WC.copy()
         self.record(cand, k, None, FrameStatus.KEYFRAME)
-        self.T_WC_last = T_W0
+        self.T_WC_last = self.backend.keyframes[k].T_WC.copy()
         for f in self.init_pending:
-            if f.index not in rotations:  # a still frame: the candidate's view
-                still = np.array_equal(f.rgb, cand.rgb)
-                self.record(f, k if still else -1, None, self.STILL if still else FrameStatus.LOST)
-                self.stats.lost_frames += 0 if still else 1
-                continue
-            R, p_f = rotations[f.index]
-            T_CkCf = rotation_pose(so3.from_matrix(R))
-            self.T_WC_last = sim3.mul(T_W0, T_CkCf)
-            self.last_tracked = TrackedFrame(f, self.T_WC_last, p_f, k, R)
-            self.record(f, k, T_CkCf, FrameStatus.ROTATION)
+            self._pose_waiting(f, k)
         self.init_candidate, self.init_pending, self.init_rotations = None, [], {}
         self.mode = Mode.TRACKING
         if frame is None:
@@ -108,6 +95,22 @@ class RotationStart:
         if result == FrameStatus.LOST:
             self.lose_tracking()
         return result
+
+    def _pose_waiting(self, f: Frame, k: int) -> None:
+        """Record waiting frame ``f`` against keyframe ``k`` (the candidate): by its rotation,
+        at the candidate's pose when its image is the candidate's, else lost."""
+        T_W0 = self.backend.keyframes[k].T_WC
+        if f.index in self.init_rotations:
+            R, p_f = self.init_rotations[f.index]
+            T_CkCf = rotation_pose(so3.from_matrix(R))
+            self.T_WC_last = sim3.mul(T_W0, T_CkCf)
+            self.last_tracked = TrackedFrame(f, self.T_WC_last, p_f, k, R)
+            self.record(f, k, T_CkCf, FrameStatus.ROTATION)
+        elif np.array_equal(f.rgb, self.backend.keyframes[k].frame.rgb):  # a still frame
+            self.record(f, k, None, FrameStatus.ROTATION)
+        else:
+            self.stats.lost_frames += 1
+            self.record(f, -1, None, FrameStatus.LOST)
 
     def finish_waiting(self) -> None:
         """At the end of the sequence, pose the frames still waiting for parallax by their
