@@ -101,3 +101,21 @@ def test_a_short_pan_is_posed_at_the_end_of_the_sequence() -> None:
     assert idx.tolist() == list(range(len(frames)))
     err = orientation_errors_deg(so3.to_matrix(T_est[:, 3:7]), so3.to_matrix(T[:, 3:7]))
     assert err.max() < ROTATION_ONLY_ORIENTATION_DEG, err.round(1)
+
+
+def test_the_console_and_summary_count_the_frames_posed_by_rotation(tmp_path, capsys) -> None:
+    """A short pan through ``mslam run``: every frame posed, all but keyframe 0 by rotation
+    alone, and the console says so."""
+    import json
+
+    from mslam.cli import main
+
+    out = tmp_path / "out"
+    assert main(["run", "synthetic:rotation:8:64x48", "--prior", "twoview", "--kernels", "ref",
+                 "--out", str(out)]) == 0  # fmt: skip
+    s = json.loads((out / "summary.json").read_text())
+    assert s["frames_with_pose"] == s["frames"] == 8
+    assert s["frames_posed_by_rotation"] == 8 - s["keyframes"]
+    assert (
+        f"{s['frames_posed_by_rotation']} frames posed by rotation alone" in capsys.readouterr().err
+    )

@@ -171,6 +171,11 @@ def _print_summary(s: dict, out: Path) -> None:
         spans = ", ".join(f"{a}-{b}" if a != b else f"{a}" for a, b in s["lost_spans"][:8])
         more = f" (+{len(s['lost_spans']) - 8} more)" if len(s["lost_spans"]) > 8 else ""
         lines.append(f"  lost spans (frame indices): {spans}{more}")
+    if s.get("frames_posed_by_rotation"):
+        lines.append(
+            f"  {s['frames_posed_by_rotation']} frames posed by rotation alone "
+            "(no parallax: at their keyframe's centre, no depth of their own)"
+        )
     reloc = ", ".join(str(i) for i in s["relocalised_at"][:8])
     lines += [
         f"  relocalisations {s['relocalisations']} of {s['reloc_attempts']} attempts"
