@@ -233,7 +233,7 @@ plt.show()
 # %% [markdown]
 # On the full 150-frame clip at 160x120 (measured 2026-11-27, benchmarks/RESULTS.md "Pure
 # rotation recognised for any focal length, and the full-resolution flow") the RGB-only map
-# scores a chamfer of 10.8 cm with 0.99 % of its points far (6.5 cm once registered by ICP),
+# scores a chamfer of 10.7 cm with 0.28 % of its points far (6.4 cm once registered by ICP),
 # the RGB-D map 9.8 cm — and 1.2 cm once registered (RESULTS "Colour registered to depth from
 # edges"): the RGB-D map itself is tight, its trajectory alignment is not. How much of that is
 # the alignment alone?
