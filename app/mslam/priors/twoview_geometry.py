@@ -3,7 +3,8 @@
 The maths of :mod:`mslam.priors.twoview`, image pair (i, j) with intrinsics K:
 
 * dense correspondences ``u_j = u_i + F_ij(u_i)`` from OpenCV's DIS optical flow
-  (:mod:`mslam.priors.twoview_dis`), checked forward–backward: ``e_fb(u_i) = ‖F_ij(u_i) + F_ji(u_i + F_ij(u_i))‖`` (pixels);
+  (:mod:`mslam.priors.twoview_dis`), checked forward–backward:
+  ``e_fb(u_i) = ‖F_ij(u_i) + F_ji(u_i + F_ij(u_i))‖`` (pixels);
 * the essential matrix ``x_jᵀ E x_i = 0`` (``x = K⁻¹[u, 1]``) by RANSAC on a subsample of the
   consistent correspondences, decomposed into ``X_j = R_ji X_i + t_ji`` with ``‖t_ji‖ = 1``
   (cheirality decides among the four solutions);
@@ -13,7 +14,8 @@ The maths of :mod:`mslam.priors.twoview`, image pair (i, j) with intrinsics K:
 * parallax of the pair from the best homography H (RANSAC), not from the essential matrix,
   whose translation (and so the triangulation angle) is noise when the baseline is tiny: the
   residuals ``‖u_j - H u_i‖`` (a non-planar scene) and the departure of ``K⁻¹ H K`` from a
-  rotation (a plane seen from two centres). Pure rotation and a tiny baseline give ~0 for both.
+  rotation (a plane seen from two centres). Pure rotation and a tiny baseline give ~0 for both
+  (:mod:`mslam.priors.twoview_homography`, re-exported here).
 
 Public names, in reading order:
     focal_guess_intrinsics, forward_backward_error, symmetric_flow, flow_consistency,
@@ -54,8 +56,8 @@ def focal_guess_intrinsics(width: int, height: int, fov_deg: float = GUESS_FOV_D
     A camera's field of view belongs to its sensor's long side: a phone held upright films
     portrait frames whose *width* is the short side, and a guess across the width would make
     its focal length a third too short (the 7-Scenes clip turned upright: 104 px against about
-    131 at 120x160; measured 2026-11-27, RGB-only ATE 5.3 cm with the guess across the width,
-    see docs/priors.md). Landscape frames are unchanged.
+    131 at 120x160; RGB-only ATE 3.79 cm with the guess across the width, 3.00 cm across the
+    long side, 2026-11-27, docs/priors.md). Landscape frames are unchanged.
 
     Args:
         width, height: image size in pixels (>= 2).

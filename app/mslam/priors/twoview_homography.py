@@ -123,8 +123,10 @@ def homography_fit(
     p = np.hstack([uv_i, np.ones((len(uv_i), 1))]) @ H.T
     w = np.where(np.abs(p[:, 2:]) > 1e-12, p[:, 2:], 1e-12)
     off_plane = float(np.percentile(np.linalg.norm(p[:, :2] / w - uv_j, axis=1), 90))
-    focals = f0 * FOCAL_SPAN if focal_free else np.array([f0])
-    planes = [_plane_px(H, _with_focal(K, f)) if focal_free else _plane_px(H, K) for f in focals]
+    if not focal_free:
+        return HomographyFit(H, max(off_plane, _plane_px(H, K) - plane_margin_px), f0)
+    focals = f0 * FOCAL_SPAN
+    planes = [_plane_px(H, _with_focal(K, f)) for f in focals]
     best = int(np.argmin(planes))
     return HomographyFit(H, max(off_plane, planes[best] - plane_margin_px), float(focals[best]))
 

@@ -103,7 +103,8 @@ class SlamSystem(ParallaxSteps, RotationStart):
         self.poses: list[FramePose] = []
         self.init_candidate: Frame | None = None
         self.init_pending: list[Frame] = []
-        self.init_rotations: dict[int, tuple[FloatArray, PairPrediction]] = {}
+        self.init_rotations: dict[int, FloatArray] = {}
+        self.init_rotated_pair: PairPrediction | None = None
         self.last_tracked: TrackedFrame | None = None
         self.tracking_pair: tuple[int, int, PairPrediction] | None = None
         from threadpoolctl import ThreadpoolController
@@ -181,7 +182,7 @@ class SlamSystem(ParallaxSteps, RotationStart):
         self.divergence.new_map()
         self.merger.reset()
         self.tracker.idx_f2k, self.last_tracked = None, None
-        self.init_candidate, self.init_pending, self.init_rotations = None, [], {}
+        self.restart_wait(None)
         self.mode = Mode.INIT
 
     def init_mono(self, frame: Frame) -> FrameStatus:

@@ -39,7 +39,7 @@ pairs without parallax apart:
 
 Public names, in reading order:
     prior_status, parallax_px, rotation_pose, rotated_pointmap, KeyframePair, TrackedFrame,
-    ParallaxSteps
+    replace_pointmap, ParallaxSteps
 """
 
 from __future__ import annotations
@@ -53,6 +53,7 @@ from mslam.config import SlamConfig
 from mslam.datasets.frame import Frame
 from mslam.priors.base import NO_INFO_C, PairPrediction, Prior
 from mslam.system.global_opt import Backend
+from mslam.system.keyframes import Keyframe
 from mslam.system.map_scale import pinhole_fit
 from mslam.system.state import FramePose, FrameStatus, Mode, RunStats
 from mslam.system.tracker import Tracker
@@ -65,6 +66,7 @@ __all__ = [
     "TrackedFrame",
     "parallax_px",
     "prior_status",
+    "replace_pointmap",
     "rotated_pointmap",
     "rotation_pose",
 ]
@@ -167,6 +169,19 @@ def rotated_pointmap(
     return X, C
 
 
+def replace_pointmap(
+    backend: Backend, kf: Keyframe, X: FloatArray, C: FloatArray, T_WC: FloatArray | None = None
+) -> None:
+    """Give keyframe ``kf`` a new canonical pointmap ``X`` (H, W, 3) with confidence ``C``
+    (H, W), and the map's copy of it, and with ``T_WC`` (8,) a new pose (also its initial
+    one), under the backend's lock."""
+    state = fusion.init_pointmap(X.reshape(-1, 3), C.reshape(-1), backend.fusion_cfg)
+    with backend.lock:
+        kf.state, kf.X_map = state, np.asarray(state.X_canon, np.float64).copy()
+        if T_WC is not None:
+            kf.T_WC, kf.T_WC_init = np.asarray(T_WC, np.float64), np.asarray(T_WC, np.float64)
+
+
 class ParallaxSteps:
     """The steps of :class:`~mslam.system.frontend.SlamSystem` for priors that need parallax
     (module docstring); a mixin that only ``SlamSystem`` inherits, which owns these fields."""
@@ -182,7 +197,8 @@ class ParallaxSteps:
     poses: list[FramePose]
     init_candidate: Frame | None
     init_pending: list[Frame]
-    init_rotations: dict[int, tuple[FloatArray, PairPrediction]]
+    init_rotations: dict[int, FloatArray]
+    init_rotated_pair: PairPrediction | None
     last_tracked: TrackedFrame | None
     record: Callable[..., None]
     track: Callable[..., FrameStatus]
@@ -215,7 +231,7 @@ class ParallaxSteps:
         """
         cand = self.init_candidate
         if cand is None:
-            self.init_candidate, self.init_pending, self.init_rotations = frame, [], {}
+            self.restart_wait(frame)
             return FrameStatus.WAITING
         with self.stats.timer("prior"):
             p_fc = self.prior.pair(frame, cand)  # the direction tracking uses must be usable too
@@ -232,11 +248,12 @@ class ParallaxSteps:
                 for f in [cand, *self.init_pending]:  # else start again from here
                     self.stats.lost_frames += 1
                     self.record(f, -1, None, FrameStatus.LOST)
-                self.init_candidate, self.init_pending, self.init_rotations = frame, [], {}
+                self.restart_wait(frame)
             else:
                 self.init_pending.append(frame)
                 if R_fc is not None:  # turned from the candidate (module rotation_start)
-                    self.init_rotations[int(frame.index)] = (np.asarray(R_fc), p_fc)
+                    self.init_rotations[int(frame.index)] = np.asarray(R_fc)
+                    self.init_rotated_pair = p_fc  # the latest only: a pair is megabytes
             return FrameStatus.WAITING
         k = self.backend.add_keyframe(cand, self.anchor, p.X_ii, p.C_ii, p.D_ii, p.Q_ii)
         self.backend.retrieval.update(self.backend.keyframes[k].retrieval_features())
@@ -252,8 +269,14 @@ class ParallaxSteps:
                 if self.track(f, allow_keyframe=False) == FrameStatus.LOST:
                     self.stats.lost_frames += 1
             self.T_WC_last, self.tracker.idx_f2k = T_last, None
-        self.init_candidate, self.init_pending, self.init_rotations = None, [], {}
+        self.restart_wait(None)
         return result
+
+    def restart_wait(self, candidate: Frame | None) -> None:
+        """Start INIT's wait for parallax afresh from ``candidate`` (None: from the next frame):
+        no waiting frames, no rotations kept (``mslam.system.rotation_start``)."""
+        self.init_candidate, self.init_pending = candidate, []
+        self.init_rotations, self.init_rotated_pair = {}, None
 
     def keyframe_pair(self, frame: Frame) -> KeyframePair:
         """The pair with the last keyframe, or with the one before it when the prior flags the
@@ -365,7 +388,4 @@ class ParallaxSteps:
                 np.asarray(p.X_ii, np.float64),
             )
             T_WC = sim3.mul(ref.T_WC, rotation_pose(q))
-        state = fusion.init_pointmap(X.reshape(-1, 3), C.reshape(-1), self.backend.fusion_cfg)
-        with self.backend.lock:
-            kf.state, kf.X_map = state, np.asarray(state.X_canon, np.float64).copy()
-            kf.T_WC, kf.T_WC_init = np.asarray(T_WC, np.float64), np.asarray(T_WC, np.float64)
+        replace_pointmap(self.backend, kf, X, C, T_WC)

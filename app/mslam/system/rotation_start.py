@@ -37,7 +37,7 @@ from mslam.datasets.frame import Frame
 from mslam.priors.base import NO_INFO_C, PairPrediction, Prior
 from mslam.system.global_opt import Backend
 from mslam.system.keyframes import Keyframe
-from mslam.system.parallax import TrackedFrame, rotation_pose
+from mslam.system.parallax import TrackedFrame, replace_pointmap, rotation_pose
 from mslam.system.state import FrameStatus, Mode, RunStats
 from mslam_ref import fusion, sim3, so3
 from mslam_ref.conventions import FloatArray
@@ -53,7 +53,8 @@ def depthless(kf: Keyframe) -> bool:
 class RotationStart:
     """The steps of the module docstring; a mixin that only ``SlamSystem`` inherits, which owns
     these fields (``init_rotations``: waiting frame index -> its rotation to the candidate
-    ``R`` (3, 3) and the pair's prediction)."""
+    ``R`` (3, 3); ``init_rotated_pair``: the prediction of the latest such frame's pair, the
+    one frame that may become a keyframe late)."""
 
     prior: Prior
     stats: RunStats
@@ -63,12 +64,14 @@ class RotationStart:
     T_WC_last: FloatArray
     init_candidate: Frame | None
     init_pending: list[Frame]
-    init_rotations: dict[int, tuple[FloatArray, PairPrediction]]
+    init_rotations: dict[int, FloatArray]
+    init_rotated_pair: PairPrediction | None
     last_tracked: TrackedFrame | None
     record: Callable[..., None]
     track: Callable[..., FrameStatus]
     lose_tracking: Callable[[], None]
     pair_status: Callable[[PairPrediction], str]
+    restart_wait: Callable[[Frame | None], None]
 
     def start_by_rotation(self, frame: Frame | None) -> FrameStatus | None:
         """Start the map from the waiting candidate without depth (module docstring) when
@@ -87,7 +90,11 @@ class RotationStart:
         self.T_WC_last = self.backend.keyframes[k].T_WC.copy()
         for f in self.init_pending:
             self._pose_waiting(f, k)
-        self.init_candidate, self.init_pending, self.init_rotations = None, [], {}
+        last = [f for f in self.init_pending if f.index in self.init_rotations][-1]
+        if self.init_rotated_pair is not None:  # it may become a keyframe (promote_last_tracked)
+            R = self.init_rotations[last.index]
+            self.last_tracked = TrackedFrame(last, self.T_WC_last, self.init_rotated_pair, k, R)
+        self.restart_wait(None)
         self.mode = Mode.TRACKING
         if frame is None:
             return FrameStatus.ROTATION
@@ -101,10 +108,8 @@ class RotationStart:
         at the candidate's pose when its image is the candidate's, else lost."""
         T_W0 = self.backend.keyframes[k].T_WC
         if f.index in self.init_rotations:
-            R, p_f = self.init_rotations[f.index]
-            T_CkCf = rotation_pose(so3.from_matrix(R))
+            T_CkCf = rotation_pose(so3.from_matrix(self.init_rotations[f.index]))
             self.T_WC_last = sim3.mul(T_W0, T_CkCf)
-            self.last_tracked = TrackedFrame(f, self.T_WC_last, p_f, k, R)
             self.record(f, k, T_CkCf, FrameStatus.ROTATION)
         elif np.array_equal(f.rgb, self.backend.keyframes[k].frame.rgb):  # a still frame
             self.record(f, k, None, FrameStatus.ROTATION)
@@ -129,13 +134,8 @@ class RotationStart:
             p = self.prior.pair(kf.frame, frame)
         if self.pair_status(p) != "ok":
             return
-        self.set_pointmap(kf, np.asarray(p.X_ii, np.float64), np.asarray(p.C_ii, np.float64))
-
-    def set_pointmap(self, kf: Keyframe, X: FloatArray, C: FloatArray) -> None:
-        """Replace the keyframe's canonical pointmap and the map's copy: X (H, W, 3), C (H, W)."""
-        state = fusion.init_pointmap(X.reshape(-1, 3), C.reshape(-1), self.backend.fusion_cfg)
-        with self.backend.lock:
-            kf.state, kf.X_map = state, np.asarray(state.X_canon, np.float64).copy()
+        X, C = np.asarray(p.X_ii, np.float64), np.asarray(p.C_ii, np.float64)
+        replace_pointmap(self.backend, kf, X, C)
 
     def rotation_match(self, n: int, c: int) -> bool:
         """Whether keyframe ``n``'s image is turned from keyframe ``c``'s without parallax, as
