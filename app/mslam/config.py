@@ -183,6 +183,12 @@ class SlamConfig:
             raise ValueError(f"descriptors: expected 'dense' or 'separable', got {kind!r}")
         return dataclasses.replace(cfg, desc=dataclasses.replace(cfg.desc, kind=kind))
 
+    def twoview_prior(self) -> Any:
+        """``mslam.priors.twoview.TwoViewPriorConfig`` from ``twoview_prior.*``."""
+        from mslam.priors.twoview import TwoViewPriorConfig
+
+        return self._section_as(TwoViewPriorConfig, "twoview_prior")
+
     def mast3r_prior(self) -> Any:
         """``mslam.priors.mast3r.Mast3rConfig`` from ``mast3r_prior.*`` (checkpoint, input
         size, device, cache bound; keys not in the YAML keep the dataclass defaults)."""

@@ -171,6 +171,11 @@ def _print_summary(s: dict, out: Path) -> None:
         spans = ", ".join(f"{a}-{b}" if a != b else f"{a}" for a, b in s["lost_spans"][:8])
         more = f" (+{len(s['lost_spans']) - 8} more)" if len(s["lost_spans"]) > 8 else ""
         lines.append(f"  lost spans (frame indices): {spans}{more}")
+    focal = s.get("focal_estimate")
+    if focal:
+        lines.append(
+            f"  focal length {focal['guess_px'] * focal['scale']:.1f} px: {focal['reason']}"
+        )
     if s.get("frames_posed_by_rotation"):
         lines.append(
             f"  {s['frames_posed_by_rotation']} frames posed by rotation alone "

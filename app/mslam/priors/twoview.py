@@ -13,17 +13,15 @@ For RGB-only input without a network (image folders, videos, the RGB stream of T
    the homography's decompositions; hypotheses the pair cannot tell apart (a planar scene)
    are resolved by an earlier reconstruction of i or j (:mod:`mslam.priors.twoview_planar`);
 3. the pair is **degenerate** — too few inliers (``min_inliers``) or consistent flow vectors
-   (``min_flow_frac``), or too little parallax
-   (:func:`homography_parallax` < ``min_parallax_px``: the flow is a homography that is a
-   rotation, which covers pure rotation and a tiny baseline, but not a plane seen from two
-   centres) — then no geometry is invented: the pointmaps are fronto-parallel planes,
+   (``min_flow_frac``), or too little parallax (:func:`homography_parallax` <
+   ``min_parallax_px``: the flow is a homography that is a rotation, which covers pure
+   rotation and a tiny baseline, but not a plane seen from two centres) — then no geometry is invented: the pointmaps are fronto-parallel planes,
    ``C = 1`` everywhere and ``Q_ji = FAILED_Q``, so the match quality ``sqrt(Q_ii Q_ji)``
    stays under upstream's ``Q_conf`` and tracking, edges and relocalisation reject the pair;
 4. otherwise every pixel of i and of j is triangulated in camera i (midpoint) along its
    symmetric flow (:func:`symmetric_flow`: one correspondence per point); pixels that fail
    (occlusion, cheirality, flow leaving the image) get the depth of the nearest triangulated
-   pixel and ``C = 1`` (``NO_INFO_C``: the map's fusion
-   keeps them out of the exported positions, the export never writes them);
+   pixel and ``C = 1`` (``NO_INFO_C``: fusion and the export leave them out);
 5. the scale is arbitrary (``‖t_ji‖ = 1``) and normalised as MASt3R's outputs: both pointmaps
    are divided by the median distance of their triangulated points to camera i's centre;
 6. ``C = 1 + conf_max · w_θ · w_r · w_fb`` with ``w_θ = 1 - exp(-(θ/angle_sigma)²)``
@@ -35,27 +33,25 @@ For RGB-only input without a network (image folders, videos, the RGB stream of T
    descriptors of the RGB-D prior (``descriptors.patch_descriptors``, ``descriptor_Q``).
 
 Intrinsics: ``K`` when calibrated (``--calib``), else :func:`focal_guess_intrinsics` (60°
-across the long side), which the SLAM system never sees: uncalibrated, it only uses the
-pointmaps, as with MASt3R. Uncalibrated, a pair is without parallax when its flow is a
+across the long side) times ``focal_scale`` (a run sets it from the video where the video
+determines it, :mod:`twoview_focal`), which the SLAM system never sees: uncalibrated, it only
+uses the pointmaps, as with MASt3R. Uncalibrated, a pair is without parallax when its flow is a
 rotation for *some* focal length (``focal_free_parallax``, :mod:`twoview_homography`). A whole
 run's ATE moves by up to 1 cm under 1-3 % focal changes (docs/priors.md).
 
-``mono(i)``: one image has no parallax, so there is no honest depth: the most recent
-non-degenerate two-view pointmap of that image (as i or as j, in its own camera, normalised)
-when there is one, else a fronto-parallel plane at distance 1 with ``C = 1``. The frontend
-does not start from ``mono`` with this prior (``needs_parallax = True``): it waits for the
-first pair with parallax, or starts under pure rotation (:mod:`mslam.system.rotation_start`).
+``mono(i)``: no parallax, no honest depth: the latest non-degenerate two-view pointmap of the
+image (as i or j, in its own camera, normalised), else a fronto-parallel plane at distance 1,
+``C = 1``. The frontend does not start from ``mono`` (``needs_parallax = True``): it waits for
+a pair with parallax, or starts under pure rotation (:mod:`mslam.system.rotation_start`).
 
 ``last_status`` is ``"ok"``, ``"same"`` (i is j), ``"few_inliers"`` or ``"parallax"``;
-``last_info`` has the inlier count, the homography parallax (pixels), the median
-triangulation angle (degrees) and the mean focal length of K (pixels) of the last pair; ``last_R_ji`` (3, 3) the rotation of a pair
+``last_info`` has the inlier count, the homography parallax (pixels), the median triangulation
+angle (degrees) and K's mean focal length (pixels) of the last pair; ``last_R_ji`` (3, 3) the rotation of a pair
 flagged ``"parallax"`` (well determined without parallax; the frontend poses such frames by
 rotation only), else None.
 
-Memory: per-frame work (descriptors, keypoints) and per-pair flows live in ``cache``, the
-remembered pointmaps of ``mono`` and the third view in ``views``; each is a
-:class:`~mslam.priors.cache.ByteLRU` bounded by ``desc.cache_bytes`` (a view takes
-H·W·32 bytes: about 4000 views at 160x120 in the default 128 MiB).
+Memory: ``cache`` (per-frame work, per-pair flows) and ``views`` (pointmaps of ``mono`` and the
+third view) are ``ByteLRU`` of ``desc.cache_bytes`` each.
 
 Public names, in reading order:
     TwoViewPriorConfig, TwoViewPrior
@@ -116,14 +112,14 @@ class TwoViewPriorConfig:
         planar_candidates: also try the homography decompositions as pose hypotheses
             (:mod:`mslam.priors.twoview_planar`).
         third_view: resolve hypotheses the pair cannot tell apart with the remembered depth
-            of images i and j (earlier pairs' reconstructions); calibrated only: with the
-            focal-length guess every pair's structure is a different projective distortion
-            of the scene, so depths of two pairs need not agree even for the right pose
-            (measured on the synthetic loop: ATE 2.1 % without, 3.4 % with it).
+            of images i and j; calibrated only (uncalibrated, two pairs' depths are different
+            projective distortions: on the synthetic loop ATE 2.1 % without, 3.4 % with it).
         ambiguity: cost ratio under which hypotheses count as indistinguishable.
         focal_free_parallax: uncalibrated, a pair whose flow is a rotation for *some* focal
             length has no parallax, and its rotation is the homography's at that focal length
             (:mod:`mslam.priors.twoview_homography`).
+        self_calibrate: uncalibrated, a run first estimates the focal length from the video
+            and uses it where determined (:mod:`mslam.priors.twoview_focal`).
         guide: sparse-feature seeding of the flow for pairs beyond DIS's range
             (:mod:`mslam.priors.twoview_flow`).
     """
@@ -148,18 +144,11 @@ class TwoViewPriorConfig:
     third_view: bool = True
     ambiguity: float = 1.5
     focal_free_parallax: bool = True
+    self_calibrate: bool = True
 
     def __post_init__(self) -> None:
-        positive = (
-            "fb_px",
-            "pose_fb_px",
-            "ransac_px",
-            "max_reproj_px",
-            "angle_sigma_deg",
-            "reproj_sigma",
-            "fb_sigma",
-            "q_contrast",
-        )
+        positive = ("fb_px", "pose_fb_px", "ransac_px", "max_reproj_px", "angle_sigma_deg",
+                    "reproj_sigma", "fb_sigma", "q_contrast")  # fmt: skip
         for name in positive:
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name}: must be > 0, got {getattr(self, name)}")
@@ -176,6 +165,7 @@ class TwoViewPrior:
         K: (3, 3) intrinsics valid at ``image_size`` (calibrated), or None for the focal guess.
         image_size: ``(W, H)`` at which ``K`` is valid (required with ``K``).
         cfg: parameters.
+        focal_scale: uncalibrated, the focal length over the guess's.
     """
 
     #: The frontend waits for a pair with enough parallax before fixing the first keyframe.
@@ -186,12 +176,14 @@ class TwoViewPrior:
         K: FloatArray | None = None,
         image_size: tuple[int, int] | None = None,
         cfg: TwoViewPriorConfig = TwoViewPriorConfig(),
+        focal_scale: float = 1.0,
     ) -> None:
         if K is not None:
             K = np.asarray(K, dtype=np.float64)
             if K.shape != (3, 3) or image_size is None:
                 raise ValueError("K: expected (3, 3) intrinsics together with image_size (W, H)")
         self.K, self.image_size, self.cfg = K, image_size, cfg
+        self.focal_scale = float(focal_scale)
         self.last_status = "none"
         self.last_R_ji: FloatArray | None = None
         self.last_info: dict[str, float] = {}
@@ -204,7 +196,8 @@ class TwoViewPrior:
         """Intrinsics at the frame's resolution (the focal guess when uncalibrated)."""
         H, W = frame.shape
         if self.K is None or self.image_size is None:  # the constructor sets both or neither
-            return focal_guess_intrinsics(W, H)
+            s = self.focal_scale
+            return focal_guess_intrinsics(W, H) @ np.diag([s, s, 1.0])
         size = (int(self.image_size[0]), int(self.image_size[1]))
         if (W, H) == size:
             return self.K

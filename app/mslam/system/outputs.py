@@ -208,7 +208,7 @@ def summary_dict(system: SlamSystem, meta: dict[str, Any], ev: dict[str, Any]) -
         out["evaluation_error"] = ev["evaluation_error"]
     if meta.get("skipped"):
         out["skipped"] = meta["skipped"]
-    for key in ("colour_registration", "baseline", "config"):
+    for key in ("colour_registration", "focal_estimate", "baseline", "config"):
         if key in meta:
             out[key] = {k: v for k, v in meta[key].items() if not k.startswith("_")}
     return out

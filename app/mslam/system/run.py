@@ -22,7 +22,7 @@ from mslam.config import SlamConfig
 from mslam.datasets.frame import Frame
 from mslam.kernels import KernelSet
 from mslam.system.frontend import SlamSystem
-from mslam.system.sources import Source
+from mslam.system.sources import Source, self_calibrate
 from mslam.system.state import FrameStatus, Mode
 
 __all__ = ["FrameObserver", "run_slam"]
@@ -71,8 +71,12 @@ def run_slam(
         seconds, interrupted).
     """
     seq = source.sequence
+    focal = None
+    t_focal = time.perf_counter()
     if system is None:
+        focal = self_calibrate(source)  # an uncalibrated two-view run: f from the video
         system = SlamSystem(source.prior, cfg, kernels, source.K)
+    t_focal = time.perf_counter() - t_focal
     n = len(seq)
     bar = None
     if progress:
@@ -122,7 +126,7 @@ def run_slam(
         if bar is not None:
             bar.close()
     system.close()  # the background backend (if any) finishes its queued keyframes
-    seconds = time.perf_counter() - t0
+    seconds = time.perf_counter() - t0 + t_focal  # the focal pre-pass counts too
     system.mode = Mode.TERMINATED
     meta = {
         "source": source.name,
@@ -131,6 +135,8 @@ def run_slam(
         "interrupted": interrupted,
         "skipped": skipped,
     }
+    if focal is not None:
+        meta["focal_estimate"] = focal
     return system, meta
 
 

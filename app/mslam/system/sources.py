@@ -17,8 +17,12 @@ error (``ValueError``/``FileNotFoundError``) and no output is written:
 * ``dataset.long_side`` shrinks frames (never enlarges) so the long side has that many pixels,
   with the intrinsics rescaled; ``dataset.subsample`` keeps every n-th frame.
 
+``self_calibrate`` (called by ``run_slam`` before the first frame): an uncalibrated two-view
+run takes its focal length from the video where the video determines it
+(``mslam.priors.twoview_focal``).
+
 Public names, in reading order:
-    PRIORS, Source, open_source
+    PRIORS, Source, open_source, self_calibrate
 """
 
 from __future__ import annotations
@@ -36,7 +40,7 @@ from mslam.datasets.frame import Frame, FrameSequence
 from mslam.datasets.views import ResizedSequence, SubsampledSequence, TruncatedSequence
 from mslam.priors.base import Prior
 
-__all__ = ["PRIORS", "Source", "open_source"]
+__all__ = ["PRIORS", "Source", "open_source", "self_calibrate"]
 
 #: Accepted ``--prior`` values.
 PRIORS = ("synthetic", "rgbd", "mast3r", "twoview")
@@ -64,12 +68,13 @@ def _make_prior(
     name: str, sequence: Any, use_calib: bool = False, cfg: SlamConfig | None = None
 ) -> Prior:
     if name == "twoview":
-        from mslam.priors.twoview import TwoViewPrior
+        from mslam.priors.twoview import TwoViewPrior, TwoViewPriorConfig
 
+        tv = cfg.twoview_prior() if cfg is not None else TwoViewPriorConfig()
         if not use_calib:
-            return TwoViewPrior()  # focal-length guess (mslam.priors.twoview_geometry)
+            return TwoViewPrior(cfg=tv)  # the focal guess until self_calibrate
         H, W = _first_readable(sequence, sequence.name or "source").shape
-        return TwoViewPrior(sequence.K, (W, H))
+        return TwoViewPrior(sequence.K, (W, H), tv)
     if name == "synthetic":
         from mslam.priors.synthetic import SyntheticPrior
 
@@ -149,6 +154,23 @@ def open_source(
     if K is not None and hasattr(p, "network_intrinsics"):
         K = p.network_intrinsics(K, first)  # pointmaps come at the network resolution
     return Source(seq, p, prior_name, K, seq.name or str(source))
+
+
+def self_calibrate(source: Source) -> dict[str, object] | None:
+    """Set an uncalibrated two-view prior's focal length from the video (module docstring);
+    returns the estimate's record for ``summary.json`` (``focal_estimate``), or None for other
+    priors, calibrated runs and a prior that already has one."""
+    from mslam.priors.twoview import TwoViewPrior
+    from mslam.priors.twoview_focal import estimate_focal
+
+    prior = source.prior
+    if not isinstance(prior, TwoViewPrior) or prior.K is not None or prior.focal_scale != 1.0:
+        return None
+    if not prior.cfg.self_calibrate:
+        return None
+    estimate = estimate_focal(source.sequence)
+    prior.focal_scale = estimate.scale
+    return estimate.as_dict()
 
 
 def _first_readable(seq: Any, name: str, tries: int = 10) -> Frame:
