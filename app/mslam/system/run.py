@@ -68,7 +68,7 @@ def run_slam(
 
     Returns:
         the system (keyframes, graph, per-frame poses, stats) and ``meta`` (source, prior,
-        seconds, interrupted).
+        seconds, interrupted; ``focal_estimate`` when the focal length was estimated).
     """
     seq = source.sequence
     focal = None
@@ -136,7 +136,7 @@ def run_slam(
         "skipped": skipped,
     }
     if focal is not None:
-        meta["focal_estimate"] = focal
+        meta["focal_estimate"] = {**focal, "seconds": t_focal}
     return system, meta
 
 
