@@ -29,9 +29,11 @@
 #
 # 1. how a classical two-view pipeline (flow, essential matrix, triangulation) stands in for the
 #    network's pair prediction, and why its scale is arbitrary per pair;
-# 2. what that does to the keyframes: a scale per keyframe, visible against ground truth;
-# 3. why the poses are Sim(3): the backend's edges tie the keyframe scales together;
-# 4. how the dense map is scored against true depth (accuracy, completion, chamfer), and why
+# 2. what focal length an uncalibrated run assumes, and when the video itself decides it;
+# 3. what the arbitrary scale does to the keyframes: a scale per keyframe, visible against
+#    ground truth;
+# 4. why the poses are Sim(3): the backend's edges tie the keyframe scales together;
+# 5. how the dense map is scored against true depth (accuracy, completion, chamfer), and why
 #    the trajectory's alignment alone can make a tight map look loose.
 
 # %%
@@ -59,13 +61,43 @@ else:  # without the data folder: a rendered sequence, used RGB-only all the sam
 cfg = load_config("twoview", overrides)
 src = open_source(source, cfg, prior="twoview")
 assert isinstance(src.prior, TwoViewPrior)  # flow + essential matrix + triangulation
-system, _ = run_slam(src, cfg, load_kernels("fast"))
+system, meta = run_slam(src, cfg, load_kernels("fast"))
 seq = src.sequence
 idx, ts, T = system.frame_poses()
 print(f"{len(idx)} / {len(seq)} frames posed, {len(system.keyframes)} keyframes, "
       f"{system.graph.count('retrieval')} retrieval edges")  # fmt: skip
 ate = evaluate.ate(ts, T, seq.timestamps, seq.T_WC)
 print(f"ATE (Sim(3)) {ate.rmse * 100:.1f} cm")
+
+# %% [markdown]
+# ## The focal length an uncalibrated run assumes
+#
+# Triangulation turns pixels into rays, so the two-view prior needs a focal length even when the
+# system is uncalibrated. It assumes a 60° field of view across the long side unless the video
+# says otherwise: before the first frame, `run_slam` sums the self-calibration cost of up to 32
+# pairs (the two singular values of `K_fᵀ F K_f`, F a pair's fundamental matrix, are equal only
+# at the camera's focal length; `mslam.priors.twoview_focal`, docs/priors.md). The minimum
+# replaces the guess where a bootstrap over the pairs pins it down and it contradicts the guess
+# by more than the estimator's known long bias. The verdict is in the run's metadata
+# (`summary.json`'s `focal_estimate`); the curve shows how sharply the video decides.
+
+# %%
+from mslam.priors.twoview_focal import SEARCH, pair_costs
+
+focal = meta.get("focal_estimate")
+print(focal["reason"] if focal else "no estimate")
+costs, guess = pair_costs(seq)
+total = costs.sum(0)
+plt.figure(figsize=(5, 2.6))
+plt.semilogx(SEARCH * guess, total / total.max())
+plt.axvline(guess, color="0.5", ls=":", label="60° guess")
+if focal and focal["estimate_px"]:
+    used = "used" if focal["used"] else "not used"
+    plt.axvline(focal["estimate_px"], color="C3", ls="--", label=f"estimate, {used}")
+plt.xlabel("focal length [px]")
+plt.ylabel("summed cost (normalised)")
+plt.legend(fontsize=8)
+plt.show()
 
 # %% [markdown]
 # ## The scale of each keyframe's pointmap
