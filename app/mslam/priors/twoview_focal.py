@@ -31,6 +31,8 @@ Public names, in reading order:
 
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass
 
 import cv2
@@ -161,7 +163,7 @@ def pair_costs(frames: FrameSequence, seed: int = 0) -> tuple[FloatArray, float]
     n = len(frames)
     pairs = [(int(i), int(i) + gap) for gap in GAPS if n > gap
              for i in np.unique(np.linspace(0, n - 1 - gap, PAIRS_PER_GAP).round())]  # fmt: skip
-    size, costs = None, []
+    size, jobs = None, []
     for i, j in pairs:
         try:
             a, b = frames[i], frames[j]
@@ -169,12 +171,14 @@ def pair_costs(frames: FrameSequence, seed: int = 0) -> tuple[FloatArray, float]
             continue
         size = size or a.shape  # (H, W) of the first readable pair
         if a.shape == b.shape == size:
-            c = pair_cost(a.rgb, b.rgb, focal_guess_intrinsics(size[1], size[0]), seed + i)
-            if c is not None:
-                costs.append(c)
+            jobs.append((a.rgb, b.rgb, seed + i))
     H, W = size or frames[0].shape
-    guess = float(focal_guess_intrinsics(W, H)[0, 0])
-    return np.asarray(costs).reshape(-1, len(SEARCH)), guess
+    K = focal_guess_intrinsics(W, H)
+    # Pairs are independent and OpenCV releases the GIL: one thread per core (same results).
+    with ThreadPoolExecutor(max_workers=max(1, min(len(jobs), os.cpu_count() or 1))) as pool:
+        found = list(pool.map(lambda job: pair_cost(job[0], job[1], K, job[2]), jobs))
+    costs = [c for c in found if c is not None]
+    return np.asarray(costs).reshape(-1, len(SEARCH)), float(K[0, 0])
 
 
 def decide(costs: FloatArray, guess: float, seed: int = 0) -> FocalEstimate:
