@@ -47,9 +47,9 @@ Z_TOL = 0.02
 PATHS = ("wobble", "sweep", "still")
 
 
-def room_cloud(clip: Path) -> tuple[np.ndarray, np.ndarray]:
-    """``(X_w (N, 3), rgb (N, 3) float)``: the clip's frames back-projected into the world."""
-    seq = load_sequence(str(clip))
+def room_cloud(seq) -> tuple[np.ndarray, np.ndarray]:
+    """``(X_w (N, 3), rgb (N, 3) float)``: the clip's frames (a loaded 7-Scenes sequence)
+    back-projected into the world."""
     seq.register_colour()
     K = seq.K.copy()
     K[:2] *= SRC_W / seq[0].shape[1]
@@ -115,8 +115,8 @@ def render(X_w, rgb, T_WC: np.ndarray, K: np.ndarray, W: int, H: int) -> np.ndar
 def write_video(out: Path, clip: Path, path: str, fov_deg: float, step: int, size) -> None:
     """Write the folder of the module docstring."""
     W, H = size
-    X_w, rgb = room_cloud(clip)
     seq = load_sequence(str(clip))
+    X_w, rgb = room_cloud(seq)
     poses = [sim3.to_matrix(np.asarray(seq.T_WC[i])) for i in range(0, len(seq), step)]
     R_add = turn(path, len(poses), step)
     f = (W / 2) / np.tan(np.radians(fov_deg) / 2)
