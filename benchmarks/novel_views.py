@@ -16,10 +16,14 @@ Paths (``--path``): the clip's own positions, with its orientations turned by
 
 ``--fov`` sets the output's horizontal field of view (the depth camera sees 57°; wider views
 show the border of what the clip saw, filled from its edge), ``--step`` plays every n-th pose
-(faster motion). Writes a TUM-layout folder (``rgb/``, ``rgb.txt``, ``groundtruth.txt``,
+(faster motion), ``--k1`` bends the output through a radial lens: the pinhole view's pixel
+``x_u`` (centred, divided by the 60° focal length of the output width, so one ``k1`` is the
+same warp at every ``--fov``) is seen at ``x_d = x_u (1 + k1 |x_u|²)``; ``k1 < 0`` barrel,
+``> 0`` pincushion, black where the pinhole view has no content, ``calib.yaml`` still the
+pinhole's (``mslam.priors.twoview_lens`` finds the lens). Writes a TUM-layout folder (``rgb/``, ``rgb.txt``, ``groundtruth.txt``,
 ``calib.yaml`` of the output camera) for ``mslam run DIR --prior twoview``::
 
-    python benchmarks/novel_views.py OUT --path wobble [--fov 50] [--step 1] [--size 320x240]
+    python benchmarks/novel_views.py OUT --path wobble [--fov 50] [--step 1] [--size 320x240] [--k1 0]
 """
 
 from __future__ import annotations
@@ -45,6 +49,8 @@ SRC_W, SRC_H = 320, 240
 #: Samples within this relative depth of a pixel's nearest one are averaged into it.
 Z_TOL = 0.02
 PATHS = ("wobble", "sweep", "still")
+#: Largest |k1| (beyond it a barrel lens folds the corners of a 4:3 frame back).
+K1_MAX = 0.3
 
 
 def room_cloud(seq) -> tuple[np.ndarray, np.ndarray]:
@@ -112,9 +118,25 @@ def render(X_w, rgb, T_WC: np.ndarray, K: np.ndarray, W: int, H: int) -> np.ndar
     return cv2.resize(img, (W, H), interpolation=cv2.INTER_AREA)
 
 
-def write_video(out: Path, clip: Path, path: str, fov_deg: float, step: int, size) -> None:
+def lens_maps(k1: float, W: int, H: int) -> tuple[np.ndarray, np.ndarray]:
+    """(H, W) float32 remap tables: for each pixel of the distorted output, its pinhole pixel
+    (module docstring, ``--k1``; the lens inverted by fixed-point iteration)."""
+    f = (W / 2) / np.tan(np.radians(30.0))
+    u, v = np.meshgrid(np.arange(W), np.arange(H))
+    x, y = (u - (W - 1) / 2) / f, (v - (H - 1) / 2) / f
+    xu, yu = x.copy(), y.copy()
+    for _ in range(10):
+        r2 = xu * xu + yu * yu
+        xu, yu = x / (1 + k1 * r2), y / (1 + k1 * r2)
+    return (xu * f + (W - 1) / 2).astype(np.float32), (yu * f + (H - 1) / 2).astype(np.float32)
+
+
+def write_video(
+    out: Path, clip: Path, path: str, fov_deg: float, step: int, size, k1: float = 0.0
+) -> None:
     """Write the folder of the module docstring."""
     W, H = size
+    maps = lens_maps(k1, W, H) if k1 else None
     seq = load_sequence(str(clip))
     X_w, rgb = room_cloud(seq)
     poses = [sim3.to_matrix(np.asarray(seq.T_WC[i])) for i in range(0, len(seq), step)]
@@ -127,6 +149,8 @@ def write_video(out: Path, clip: Path, path: str, fov_deg: float, step: int, siz
         T = T.copy()
         T[:3, :3] = T[:3, :3] @ R
         img = render(X_w, rgb, T, K, W, H)
+        if maps is not None:
+            img = cv2.remap(img, *maps, cv2.INTER_LINEAR)
         cv2.imwrite(str(out / "rgb" / f"{k:06d}.png"), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
         ts = f"{k * step / 30:.6f}"
         lines.append(f"{ts} rgb/{k:06d}.png")
@@ -145,6 +169,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--fov", type=float, default=50.0, help="horizontal field of view, degrees")
     ap.add_argument("--step", type=int, default=1, help="play every n-th pose")
     ap.add_argument("--size", default="320x240", help="WxH of the output")
+    ap.add_argument("--k1", type=float, default=0.0, help="radial lens of the output (docstring)")
     add_data_argument(ap)
     args = ap.parse_args(argv)
     clip = seven_scenes(args.data)
@@ -157,10 +182,10 @@ def main(argv: list[str] | None = None) -> int:
     except (ValueError, AssertionError):
         print(f"--size: expected WxH, got {args.size!r}", file=sys.stderr)
         return 2
-    if not 10.0 < args.fov < 120.0 or args.step < 1:
-        print("--fov: 10-120 degrees; --step: at least 1", file=sys.stderr)
+    if not 10.0 < args.fov < 120.0 or args.step < 1 or abs(args.k1) > K1_MAX:
+        print(f"--fov: 10-120 degrees; --step: at least 1; --k1: within ±{K1_MAX}", file=sys.stderr)
         return 2
-    write_video(args.out, clip, args.path, args.fov, args.step, size)
+    write_video(args.out, clip, args.path, args.fov, args.step, size, args.k1)
     print(args.out)
     return 0
 

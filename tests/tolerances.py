@@ -246,3 +246,7 @@ PAN_WALK_DIRECTION_DEG = 15.0
 #: (the self-calibration cost is biased long by flow noise; re-rendered 7-Scenes views
 #: 0-7 %).
 FOCAL_ESTIMATE_REL = 0.12
+
+#: The division coefficient of a lens, as the pre-pass estimates it: one step of the searched
+#: grid (``mslam.priors.twoview_lens.LAMBDAS``, 0.025).
+LENS_LAMBDA_ABS = 0.025

@@ -176,6 +176,8 @@ def _print_summary(s: dict, out: Path) -> None:
         lines.append(
             f"  focal length {focal['guess_px'] * focal['scale']:.1f} px: {focal['reason']}"
         )
+        if focal.get("lens"):
+            lines.append(f"  lens: {focal['lens']['reason']}")
     if s.get("frames_posed_by_rotation"):
         lines.append(
             f"  {s['frames_posed_by_rotation']} frames posed by rotation alone "

@@ -6,8 +6,15 @@ data loader does (``mast3r_slam/mast3r_utils.py::resize_img``,
 ``mast3r_slam/dataloader.py::Intrinsics.from_calib``). The resize uses Pillow's filters as
 upstream does, so the network input is bit for bit upstream's.
 
+The one-parameter division model of an uncalibrated lens (:func:`division_undistort_points`,
+:func:`division_maps`): a distorted pixel ``d`` with ``x_d = (d - c) / s`` (``c`` the image
+centre, ``s`` its half diagonal in pixels) is undistorted to ``c + s · x_d / (1 + λ |x_d|²)``;
+``λ < 0`` undoes barrel distortion, ``λ > 0`` pincushion. It needs no focal length, so an
+uncalibrated run can estimate ``λ`` first (``mslam.priors.twoview_lens``).
+
 Public functions, in reading order:
-    resize_img, optimal_intrinsics, undistort_maps, undistort
+    resize_img, optimal_intrinsics, undistort_maps, undistort, division_undistort_points,
+    division_maps
 """
 
 from __future__ import annotations
@@ -18,7 +25,14 @@ import numpy as np
 from mslam_ref.conventions import FloatArray, as_float_array
 from mslam_ref.pointmap import check_K
 
-__all__ = ["optimal_intrinsics", "resize_img", "undistort", "undistort_maps"]
+__all__ = [
+    "division_maps",
+    "division_undistort_points",
+    "optimal_intrinsics",
+    "resize_img",
+    "undistort",
+    "undistort_maps",
+]
 
 
 def _resized_size(W1: int, H1: int, long_edge: int) -> tuple[int, int]:
@@ -137,3 +151,33 @@ def undistort(img: np.ndarray, maps: tuple[np.ndarray, np.ndarray]) -> np.ndarra
     if img.shape[:2] != mx.shape:
         raise ValueError(f"img: shape {img.shape[:2]} does not match the maps {mx.shape}")
     return cv2.remap(img, mx, my, cv2.INTER_LINEAR)
+
+
+def _centre_scale(W: int, H: int) -> tuple[FloatArray, float]:
+    return np.array([(W - 1) / 2.0, (H - 1) / 2.0]), float(np.hypot(W, H) / 2.0)
+
+
+def division_undistort_points(uv: FloatArray, lam: float, W: int, H: int) -> FloatArray:
+    """(N, 2) pixels of a (W, H) image undistorted by the division model ``lam`` (module
+    docstring); ``lam = 0`` returns them unchanged."""
+    c, s = _centre_scale(W, H)
+    x = (np.asarray(uv, np.float64) - c) / s
+    return c + s * x / (1.0 + lam * (x * x).sum(-1, keepdims=True))
+
+
+def division_maps(lam: float, W: int, H: int) -> tuple[np.ndarray, np.ndarray]:
+    """Remap tables that undistort a (W, H) image by the division model ``lam``: the distorted
+    pixel of every output pixel (the model inverted by fixed-point iteration), for
+    :func:`undistort` (borders replicated where ``lam > 0`` pulls the image inwards).
+
+    Returns:
+        map_x, map_y: (H, W) float32.
+    """
+    c, s = _centre_scale(W, H)
+    u, v = np.meshgrid(np.arange(W, dtype=np.float64), np.arange(H, dtype=np.float64))
+    xu, yu = (u - c[0]) / s, (v - c[1]) / s
+    xd, yd = xu.copy(), yu.copy()
+    for _ in range(30):  # x_d = x_u (1 + lam |x_d|^2): a contraction for |lam| < 0.5
+        r2 = xd * xd + yd * yd
+        xd, yd = xu * (1.0 + lam * r2), yu * (1.0 + lam * r2)
+    return (xd * s + c[0]).astype(np.float32), (yd * s + c[1]).astype(np.float32)

@@ -4,8 +4,11 @@ Each view is itself a :class:`~mslam.datasets.frame.FrameSequence` over another 
 one input pipeline (``mslam.datasets.load_sequence`` then ``mslam.system.sources.open_source``)
 composes them in a fixed order: subsample, resize, truncate.
 
+``DivisionUndistortedSequence`` comes last, after a run has estimated its lens
+(``mslam.priors.twoview_lens``).
+
 Public names, in reading order:
-    SubsampledSequence, ResizedSequence, TruncatedSequence
+    SubsampledSequence, ResizedSequence, TruncatedSequence, DivisionUndistortedSequence
 """
 
 from __future__ import annotations
@@ -16,10 +19,16 @@ import cv2
 import numpy as np
 
 from mslam.datasets.frame import Frame, FrameSequence
+from mslam.datasets.images import division_maps
 from mslam_ref.conventions import FloatArray
 from mslam_ref.pointmap import scale_intrinsics
 
-__all__ = ["ResizedSequence", "SubsampledSequence", "TruncatedSequence"]
+__all__ = [
+    "DivisionUndistortedSequence",
+    "ResizedSequence",
+    "SubsampledSequence",
+    "TruncatedSequence",
+]
 
 
 def _copy_metadata(view: FrameSequence, base: FrameSequence) -> None:
@@ -81,3 +90,26 @@ class TruncatedSequence(FrameSequence):
 
     def _load(self, i: int) -> Frame:
         return self.base[i]
+
+
+class DivisionUndistortedSequence(FrameSequence):
+    """Frames of an uncalibrated ``base`` undistorted by the division model ``lam``
+    (``mslam.datasets.images.division_maps``): colour bilinear, depth nearest neighbour."""
+
+    def __init__(self, base: FrameSequence, lam: float) -> None:
+        self.base, self.lam = base, float(lam)
+        _copy_metadata(self, base)
+        self.timestamps, self.T_WC = base.timestamps, base.T_WC
+        self._maps: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
+
+    def _load(self, i: int) -> Frame:
+        f = self.base[i]
+        H, W = f.shape
+        if (W, H) not in self._maps:
+            self._maps[(W, H)] = division_maps(self.lam, W, H)
+        mx, my = self._maps[(W, H)]
+        rgb = cv2.remap(f.rgb, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        depth: FloatArray | None = None
+        if f.depth is not None:
+            depth = np.asarray(cv2.remap(f.depth, mx, my, cv2.INTER_NEAREST), np.float64)
+        return dataclasses.replace(f, rgb=rgb, depth=depth)

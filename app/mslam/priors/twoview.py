@@ -118,8 +118,9 @@ class TwoViewPriorConfig:
         focal_free_parallax: uncalibrated, a pair whose flow is a rotation for *some* focal
             length has no parallax, and its rotation is the homography's at that focal length
             (:mod:`mslam.priors.twoview_homography`).
-        self_calibrate: uncalibrated, a run first estimates the focal length from the video
-            and uses it where determined (:mod:`mslam.priors.twoview_focal`).
+        self_calibrate: uncalibrated, a run first estimates the focal length and the lens's
+            radial distortion from the video and uses them where determined
+            (:mod:`mslam.priors.twoview_focal`, :mod:`mslam.priors.twoview_lens`).
         guide: sparse-feature seeding of the flow for pairs beyond DIS's range
             (:mod:`mslam.priors.twoview_flow`).
     """

@@ -24,13 +24,20 @@ its ends), the estimate is not at an end of ``SEARCH``, and the range lies outsi
 a little longer than the guess says nothing against it. The run's ``summary.json`` says
 which (``focal_estimate``).
 
+**The lens first.** On the same pairs and flow samples the pre-pass first looks for radial
+distortion (:mod:`mslam.priors.twoview_lens`); where it finds it clearly, the pairs' end points
+are undistorted before their ``F`` is fitted, and the run undistorts its frames
+(``mslam.datasets.views.DivisionUndistortedSequence``). Barrel distortion otherwise passes for
+a longer focal length.
+
 Public names, in reading order:
-    GAPS, SEARCH, MIN_PAIRS, MAX_SPREAD, LONG_BIAS, FocalEstimate, kruppa_cost, pair_cost,
-    estimate_focal, pair_costs, decide
+    GAPS, SEARCH, MIN_PAIRS, MAX_SPREAD, LONG_BIAS, FocalEstimate, kruppa_cost, pair_samples,
+    pair_cost, lens_curve, estimate_focal, pair_costs, lens_and_pair_costs, decide
 """
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass
@@ -39,9 +46,11 @@ import cv2
 import numpy as np
 
 from mslam.datasets.frame import FrameSequence
+from mslam.datasets.images import division_undistort_points
 from mslam.priors.twoview_flow import guided_flow, sift_keypoints
 from mslam.priors.twoview_geometry import focal_guess_intrinsics, forward_backward_error
 from mslam.priors.twoview_homography import homography_fit
+from mslam.priors.twoview_lens import LAMBDAS, LensEstimate, decide_lens, residual_curve
 from mslam_ref.conventions import FloatArray
 
 __all__ = [
@@ -54,8 +63,11 @@ __all__ = [
     "estimate_focal",
     "decide",
     "kruppa_cost",
+    "lens_and_pair_costs",
+    "lens_curve",
     "pair_cost",
     "pair_costs",
+    "pair_samples",
 ]
 
 #: Frame gaps of the pairs, and the most pairs per gap (evenly spread over the sequence).
@@ -93,6 +105,7 @@ class FocalEstimate:
         pairs: pairs with epipolar geometry that entered the sum.
         used: whether ``estimate_px`` replaces the guess.
         reason: one line on the decision.
+        lens: the lens found on the same pairs (:mod:`mslam.priors.twoview_lens`), or None.
     """
 
     guess_px: float
@@ -102,6 +115,7 @@ class FocalEstimate:
     pairs: int
     used: bool
     reason: str
+    lens: LensEstimate | None = None
 
     @property
     def scale(self) -> float:
@@ -109,7 +123,8 @@ class FocalEstimate:
         return self.estimate_px / self.guess_px if self.used and self.estimate_px else 1.0
 
     def as_dict(self) -> dict[str, object]:
-        return {**asdict(self), "scale": self.scale}
+        out = {k: v for k, v in asdict(self).items() if k != "lens"}
+        return {**out, "scale": self.scale, "lens": self.lens and self.lens.as_dict()}
 
 
 def kruppa_cost(F: FloatArray, K: FloatArray, factors: FloatArray = SEARCH) -> FloatArray:
@@ -125,11 +140,11 @@ def kruppa_cost(F: FloatArray, K: FloatArray, factors: FloatArray = SEARCH) -> F
     return out
 
 
-def pair_cost(
+def pair_samples(
     rgb_i: np.ndarray, rgb_j: np.ndarray, K: FloatArray, seed: int = 0
-) -> FloatArray | None:
-    """:func:`kruppa_cost` of a pair's fundamental matrix, or None for a pair left out (too
-    few consistent flow vectors, a rotation, no F). Images (H, W, 3) uint8."""
+) -> tuple[FloatArray, FloatArray] | None:
+    """A pair's consistent flow end points ``(uv_i, uv_j)``, each (N, 2), N ≤ ``SAMPLES``, or
+    None for a pair left out (too few consistent vectors, a rotation). Images (H, W, 3) uint8."""
     kp_i, kp_j = (lambda: sift_keypoints(rgb_i)), (lambda: sift_keypoints(rgb_j))
     F_ij, F_ji, _ = guided_flow(rgb_i, rgb_j, kp_i, kp_j)  # the prior's flow, SIFT-seeded
     e_fb, _ = forward_backward_error(F_ij, F_ji)
@@ -141,25 +156,57 @@ def pair_cost(
     uv_j = uv_i + F_ij[v[sel], u[sel]]
     if homography_fit(uv_i, uv_j, K, focal_free=True).parallax_px < ROTATION_PX:
         return None
+    return uv_i, uv_j
+
+
+def _fundamental(uv_i: FloatArray, uv_j: FloatArray, px: float) -> tuple[FloatArray, np.ndarray]:
+    """RANSAC F (threshold ``px``) and its inlier mask (N,), or raises ValueError."""
     try:
-        F, _ = cv2.findFundamentalMat(uv_i, uv_j, cv2.FM_RANSAC, 0.5, 0.999)
-    except cv2.error:
-        return None
+        F, mask = cv2.findFundamentalMat(uv_i, uv_j, cv2.FM_RANSAC, px, 0.999)
+    except cv2.error as exc:
+        raise ValueError(str(exc)) from None
     if F is None or F.shape != (3, 3) or not np.all(np.isfinite(F)):
+        raise ValueError("no fundamental matrix")
+    return np.asarray(F, np.float64), mask.reshape(-1).astype(bool)
+
+
+def pair_cost(uv_i: FloatArray, uv_j: FloatArray, K: FloatArray) -> FloatArray | None:
+    """:func:`kruppa_cost` of the RANSAC fundamental matrix of a pair's flow end points
+    (:func:`pair_samples`, undistorted where the lens was estimated), or None without one."""
+    try:
+        return kruppa_cost(_fundamental(uv_i, uv_j, 0.5)[0], K)
+    except ValueError:
         return None
-    return kruppa_cost(np.asarray(F, np.float64), K)
+
+
+def lens_curve(uv_i: FloatArray, uv_j: FloatArray, W: int, H: int) -> FloatArray | None:
+    """:func:`mslam.priors.twoview_lens.residual_curve` of a pair, on its inliers of a loose
+    RANSAC (2 px: outliers out, distortion in), or None."""
+    try:
+        inl = _fundamental(uv_i, uv_j, 2.0)[1]
+    except ValueError:
+        return None
+    return residual_curve(uv_i[inl], uv_j[inl], W, H) if inl.sum() >= MIN_VECTORS // 2 else None
 
 
 def estimate_focal(frames: FrameSequence, seed: int = 0) -> FocalEstimate:
-    """The focal length of ``frames`` (a sequence of ``Frame``, all of one size; unreadable
-    frames are skipped), module docstring."""
-    costs, guess = pair_costs(frames, seed)
-    return decide(costs, guess, seed)
+    """The focal length (and lens) of ``frames`` (a sequence of ``Frame``, all of one size;
+    unreadable frames are skipped), module docstring."""
+    costs, guess, lens = lens_and_pair_costs(frames, seed)
+    return dataclasses.replace(decide(costs, guess, seed), lens=lens)
 
 
 def pair_costs(frames: FrameSequence, seed: int = 0) -> tuple[FloatArray, float]:
-    """``(costs (P, len(SEARCH)), guess_px)``: :func:`pair_cost` of the pairs that have
-    epipolar geometry among those of the module docstring, and the 60° guess."""
+    """``(costs (P, len(SEARCH)), guess_px)`` of :func:`lens_and_pair_costs`."""
+    return lens_and_pair_costs(frames, seed)[:2]
+
+
+def lens_and_pair_costs(
+    frames: FrameSequence, seed: int = 0
+) -> tuple[FloatArray, float, LensEstimate]:
+    """``(costs (P, len(SEARCH)), guess_px, lens)``: the lens of the pairs of the module
+    docstring, then :func:`pair_cost` of those that have epipolar geometry (their end points
+    undistorted by the lens where it is used), and the 60° guess."""
     n = len(frames)
     pairs = [(int(i), int(i) + gap) for gap in GAPS if n > gap
              for i in np.unique(np.linspace(0, n - 1 - gap, PAIRS_PER_GAP).round())]  # fmt: skip
@@ -174,11 +221,21 @@ def pair_costs(frames: FrameSequence, seed: int = 0) -> tuple[FloatArray, float]
             jobs.append((a.rgb, b.rgb, seed + i))
     H, W = size or frames[0].shape
     K = focal_guess_intrinsics(W, H)
+
+    def job(rgb_i, rgb_j, sd):
+        found = pair_samples(rgb_i, rgb_j, K, sd)
+        return None if found is None else (*found, lens_curve(*found, W, H))
+
     # Pairs are independent and OpenCV releases the GIL: one thread per core (same results).
     with ThreadPoolExecutor(max_workers=max(1, min(len(jobs), os.cpu_count() or 1))) as pool:
-        found = list(pool.map(lambda job: pair_cost(job[0], job[1], K, job[2]), jobs))
-    costs = [c for c in found if c is not None]
-    return np.asarray(costs).reshape(-1, len(SEARCH)), float(K[0, 0])
+        found = [f for f in pool.map(lambda jb: job(*jb), jobs) if f is not None]
+        curves = [c for *_, c in found if c is not None]
+        lens = decide_lens(np.asarray(curves).reshape(-1, len(LAMBDAS)), seed)
+        lam = lens.lam_in_use
+        und = (lambda uv: division_undistort_points(uv, lam, W, H)) if lam else (lambda uv: uv)
+        costs = [c for c in pool.map(lambda f: pair_cost(und(f[0]), und(f[1]), K), found)
+                 if c is not None]  # fmt: skip
+    return np.asarray(costs).reshape(-1, len(SEARCH)), float(K[0, 0]), lens
 
 
 def decide(costs: FloatArray, guess: float, seed: int = 0) -> FocalEstimate:

@@ -70,13 +70,13 @@ def run_slam(
         the system (keyframes, graph, per-frame poses, stats) and ``meta`` (source, prior,
         seconds, interrupted; ``focal_estimate`` when the focal length was estimated).
     """
-    seq = source.sequence
     focal = None
     t_focal = time.perf_counter()
     if system is None:
-        focal = self_calibrate(source)  # an uncalibrated two-view run: f from the video
+        focal = self_calibrate(source)  # uncalibrated two-view: f and the lens from the video
         system = SlamSystem(source.prior, cfg, kernels, source.K)
     t_focal = time.perf_counter() - t_focal
+    seq = source.sequence  # undistorted where the pre-pass found the lens
     n = len(seq)
     bar = None
     if progress:

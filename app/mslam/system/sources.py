@@ -157,9 +157,12 @@ def open_source(
 
 
 def self_calibrate(source: Source) -> dict[str, object] | None:
-    """Set an uncalibrated two-view prior's focal length from the video (module docstring);
-    returns the estimate's record for ``summary.json`` (``focal_estimate``), or None for other
-    priors, calibrated runs and a prior that already has one."""
+    """Set an uncalibrated two-view prior's focal length from the video (module docstring),
+    and undistort the source's frames where the video shows radial distortion clearly
+    (``source.sequence`` becomes a ``DivisionUndistortedSequence``); returns the estimate's
+    record for ``summary.json`` (``focal_estimate``), or None for other priors, calibrated
+    runs and a prior that already has one."""
+    from mslam.datasets.views import DivisionUndistortedSequence
     from mslam.priors.twoview import TwoViewPrior
     from mslam.priors.twoview_focal import estimate_focal
 
@@ -170,6 +173,8 @@ def self_calibrate(source: Source) -> dict[str, object] | None:
         return None
     estimate = estimate_focal(source.sequence)
     prior.focal_scale = estimate.scale
+    if estimate.lens is not None and estimate.lens.lam_in_use:
+        source.sequence = DivisionUndistortedSequence(source.sequence, estimate.lens.lam_in_use)
     return estimate.as_dict()
 
 
