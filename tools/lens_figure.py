@@ -53,7 +53,6 @@ def main(argv: list[str] | None = None) -> int:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    import numpy as np
 
     from mslam.config import load_config
     from mslam.priors.twoview_lens import LAMBDAS, MIN_GAIN, decide_lens
