@@ -19,11 +19,12 @@ show the border of what the clip saw, filled from its edge), ``--step`` plays ev
 (faster motion), ``--k1`` bends the output through a radial lens: the pinhole view's pixel
 ``x_u`` (centred, divided by the 60° focal length of the output width, so one ``k1`` is the
 same warp at every ``--fov``) is seen at ``x_d = x_u (1 + k1 |x_u|²)``; ``k1 < 0`` barrel,
-``> 0`` pincushion, black where the pinhole view has no content, ``calib.yaml`` still the
-pinhole's (``mslam.priors.twoview_lens`` finds the lens). Writes a TUM-layout folder (``rgb/``, ``rgb.txt``, ``groundtruth.txt``,
+``> 0`` pincushion, black where the pinhole view has no content unless ``--fill`` renders a
+pinhole view large enough for every output pixel (as a real barrel lens sees more of the
+scene), ``calib.yaml`` still the pinhole's (``mslam.priors.twoview_lens`` finds the lens). Writes a TUM-layout folder (``rgb/``, ``rgb.txt``, ``groundtruth.txt``,
 ``calib.yaml`` of the output camera) for ``mslam run DIR --prior twoview``::
 
-    python benchmarks/novel_views.py OUT --path wobble [--fov 50] [--step 1] [--size 320x240] [--k1 0]
+    python benchmarks/novel_views.py OUT --path wobble [--fov 50] [--step 1] [--size 320x240] [--k1 0 [--fill]]
 """
 
 from __future__ import annotations
@@ -132,11 +133,22 @@ def lens_maps(k1: float, W: int, H: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def write_video(
-    out: Path, clip: Path, path: str, fov_deg: float, step: int, size, k1: float = 0.0
+    out: Path,
+    clip: Path,
+    path: str,
+    fov_deg: float,
+    step: int,
+    size,
+    k1: float = 0.0,
+    fill: bool = False,
 ) -> None:
     """Write the folder of the module docstring."""
     W, H = size
     maps = lens_maps(k1, W, H) if k1 else None
+    pad = (0, 0)  # pinhole pixels rendered beyond each side (``--fill``)
+    if maps is not None and fill:
+        pad = tuple(int(np.ceil(max(-m.min(), m.max() - (n - 1), 0))) for m, n in zip(maps, (W, H)))
+        maps = (maps[0] + pad[0], maps[1] + pad[1])
     seq = load_sequence(str(clip))
     X_w, rgb = room_cloud(seq)
     poses = [sim3.to_matrix(np.asarray(seq.T_WC[i])) for i in range(0, len(seq), step)]
@@ -148,7 +160,9 @@ def write_video(
     for k, (T, R) in enumerate(zip(poses, R_add, strict=True)):
         T = T.copy()
         T[:3, :3] = T[:3, :3] @ R
-        img = render(X_w, rgb, T, K, W, H)
+        K_pad = K.copy()
+        K_pad[:2, 2] += pad
+        img = render(X_w, rgb, T, K_pad, W + 2 * pad[0], H + 2 * pad[1])
         if maps is not None:
             img = cv2.remap(img, *maps, cv2.INTER_LINEAR)
         cv2.imwrite(str(out / "rgb" / f"{k:06d}.png"), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
@@ -170,6 +184,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--step", type=int, default=1, help="play every n-th pose")
     ap.add_argument("--size", default="320x240", help="WxH of the output")
     ap.add_argument("--k1", type=float, default=0.0, help="radial lens of the output (docstring)")
+    ap.add_argument("--fill", action="store_true", help="no black corners (docstring)")
     add_data_argument(ap)
     args = ap.parse_args(argv)
     clip = seven_scenes(args.data)
@@ -185,7 +200,7 @@ def main(argv: list[str] | None = None) -> int:
     if not 10.0 < args.fov < 120.0 or args.step < 1 or abs(args.k1) > K1_MAX:
         print(f"--fov: 10-120 degrees; --step: at least 1; --k1: within ±{K1_MAX}", file=sys.stderr)
         return 2
-    write_video(args.out, clip, args.path, args.fov, args.step, size, args.k1)
+    write_video(args.out, clip, args.path, args.fov, args.step, size, args.k1, args.fill)
     print(args.out)
     return 0
 
