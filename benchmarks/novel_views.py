@@ -21,15 +21,20 @@ show the border of what the clip saw, filled from its edge), ``--step`` plays ev
 same warp at every ``--fov``) is seen at ``x_d = x_u (1 + k1 |x_u|²)``; ``k1 < 0`` barrel,
 ``> 0`` pincushion, black where the pinhole view has no content unless ``--fill`` renders a
 pinhole view large enough for every output pixel (as a real barrel lens sees more of the
-scene), ``calib.yaml`` still the pinhole's (``mslam.priors.twoview_lens`` finds the lens). Writes a TUM-layout folder (``rgb/``, ``rgb.txt``, ``groundtruth.txt``,
+scene), ``calib.yaml`` still the pinhole's (``mslam.priors.twoview_lens`` finds the lens).
+``--shutter R`` reads the rows out one after another, as a rolling shutter does: row ``y`` is
+seen at the pose a fraction ``R · y / H`` of the way to the next played pose (``BANDS`` bands of
+rows; the last frame all at once); the ground truth is the middle row's pose. Writes a TUM-layout folder (``rgb/``, ``rgb.txt``, ``groundtruth.txt``,
 ``calib.yaml`` of the output camera) for ``mslam run DIR --prior twoview``::
 
     python benchmarks/novel_views.py OUT --path wobble [--fov 50] [--step 1] [--size 320x240] [--k1 0 [--fill]]
+        [--shutter 0]
 """
 
 from __future__ import annotations
 
 import argparse
+import itertools
 import sys
 from pathlib import Path
 
@@ -50,6 +55,8 @@ SRC_W, SRC_H = 320, 240
 #: Samples within this relative depth of a pixel's nearest one are averaged into it.
 Z_TOL = 0.02
 PATHS = ("wobble", "sweep", "still")
+#: Bands of rows rendered at their own pose (``--shutter``).
+BANDS = 8
 #: Largest |k1| (beyond it a barrel lens folds the corners of a 4:3 frame back).
 K1_MAX = 0.3
 
@@ -132,6 +139,27 @@ def lens_maps(k1: float, W: int, H: int) -> tuple[np.ndarray, np.ndarray]:
     return (xu * f + (W - 1) / 2).astype(np.float32), (yu * f + (H - 1) / 2).astype(np.float32)
 
 
+def between(T0: np.ndarray, T1: np.ndarray, t: float) -> np.ndarray:
+    """(4, 4) pose a fraction ``t`` of the way from ``T0`` to ``T1`` (rotation by slerp)."""
+    rot = Rotation.from_matrix(T0[:3, :3]).inv() * Rotation.from_matrix(T1[:3, :3])
+    T = T0.copy()
+    T[:3, :3] = T0[:3, :3] @ Rotation.from_rotvec(t * rot.as_rotvec()).as_matrix()
+    T[:3, 3] = (1 - t) * T0[:3, 3] + t * T1[:3, 3]
+    return T
+
+
+def shutter_view(X_w, rgb, T0, T1, K, W, H, shutter: float) -> tuple[np.ndarray, np.ndarray]:
+    """The (H, W, 3) view read out row band by row band from ``T0`` towards ``T1`` (module
+    docstring, ``--shutter``; ``T1`` None: all at ``T0``), and the middle row's pose."""
+    if T1 is None or not shutter:
+        return render(X_w, rgb, T0, K, W, H), T0
+    img = np.empty((H, W, 3), np.uint8)
+    edges = np.linspace(0, H, BANDS + 1).round().astype(int)
+    for a, b in itertools.pairwise(edges):
+        img[a:b] = render(X_w, rgb, between(T0, T1, shutter * (a + b) / (2 * H)), K, W, H)[a:b]
+    return img, between(T0, T1, shutter / 2)
+
+
 def write_video(
     out: Path,
     clip: Path,
@@ -141,6 +169,7 @@ def write_video(
     size,
     k1: float = 0.0,
     fill: bool = False,
+    shutter: float = 0.0,
 ) -> None:
     """Write the folder of the module docstring."""
     W, H = size
@@ -157,12 +186,15 @@ def write_video(
     K = np.array([[f, 0, (W - 1) / 2], [0, f, (H - 1) / 2], [0, 0, 1.0]])
     (out / "rgb").mkdir(parents=True, exist_ok=True)
     lines, gt = [], []
-    for k, (T, R) in enumerate(zip(poses, R_add, strict=True)):
-        T = T.copy()
-        T[:3, :3] = T[:3, :3] @ R
-        K_pad = K.copy()
-        K_pad[:2, 2] += pad
-        img = render(X_w, rgb, T, K_pad, W + 2 * pad[0], H + 2 * pad[1])
+    T_all = []
+    for T, R in zip(poses, R_add, strict=True):
+        T_all.append(T.copy())
+        T_all[-1][:3, :3] = T[:3, :3] @ R
+    K_pad = K.copy()
+    K_pad[:2, 2] += pad
+    for k, T0 in enumerate(T_all):
+        T1 = T_all[k + 1] if k + 1 < len(T_all) else None
+        img, T = shutter_view(X_w, rgb, T0, T1, K_pad, W + 2 * pad[0], H + 2 * pad[1], shutter)
         if maps is not None:
             img = cv2.remap(img, *maps, cv2.INTER_LINEAR)
         cv2.imwrite(str(out / "rgb" / f"{k:06d}.png"), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
@@ -185,6 +217,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--size", default="320x240", help="WxH of the output")
     ap.add_argument("--k1", type=float, default=0.0, help="radial lens of the output (docstring)")
     ap.add_argument("--fill", action="store_true", help="no black corners (docstring)")
+    ap.add_argument("--shutter", type=float, default=0.0, help="rolling-shutter readout, 0-1")
     add_data_argument(ap)
     args = ap.parse_args(argv)
     clip = seven_scenes(args.data)
@@ -197,10 +230,18 @@ def main(argv: list[str] | None = None) -> int:
     except (ValueError, AssertionError):
         print(f"--size: expected WxH, got {args.size!r}", file=sys.stderr)
         return 2
-    if not 10.0 < args.fov < 120.0 or args.step < 1 or abs(args.k1) > K1_MAX:
-        print(f"--fov: 10-120 degrees; --step: at least 1; --k1: within ±{K1_MAX}", file=sys.stderr)
+    if (
+        not 10.0 < args.fov < 120.0
+        or args.step < 1
+        or abs(args.k1) > K1_MAX
+        or not 0 <= args.shutter <= 1
+    ):
+        print(f"--fov: 10-120 degrees; --step: at least 1; --k1: within ±{K1_MAX}; --shutter: 0-1",
+              file=sys.stderr)  # fmt: skip
         return 2
-    write_video(args.out, clip, args.path, args.fov, args.step, size, args.k1, args.fill)
+    write_video(
+        args.out, clip, args.path, args.fov, args.step, size, args.k1, args.fill, args.shutter
+    )
     print(args.out)
     return 0
 
