@@ -24,11 +24,12 @@ pinhole view large enough for every output pixel (as a real barrel lens sees mor
 scene), ``calib.yaml`` still the pinhole's (``mslam.priors.twoview_lens`` finds the lens).
 ``--shutter R`` reads the rows out one after another, as a rolling shutter does: row ``y`` is
 seen at the pose a fraction ``R · y / H`` of the way to the next played pose (``BANDS`` bands of
-rows; the last frame all at once); the ground truth is the middle row's pose. Writes a TUM-layout folder (``rgb/``, ``rgb.txt``, ``groundtruth.txt``,
-``calib.yaml`` of the output camera) for ``mslam run DIR --prior twoview``::
+rows; the last frame all at once); the ground truth is the middle row's pose. Writes a
+TUM-layout folder (``rgb/``, ``rgb.txt``, ``groundtruth.txt``, ``calib.yaml`` of the output
+camera) for ``mslam run DIR --prior twoview``::
 
-    python benchmarks/novel_views.py OUT --path wobble [--fov 50] [--step 1] [--size 320x240] [--k1 0 [--fill]]
-        [--shutter 0]
+    python benchmarks/novel_views.py OUT --path wobble [--fov 50] [--step 1] [--size 320x240]
+        [--k1 0 [--fill]] [--shutter 0]
 """
 
 from __future__ import annotations

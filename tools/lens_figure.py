@@ -26,16 +26,14 @@ def _curves(sequence):  # (P, len(LAMBDAS)) residual curves of the pre-pass's pa
     from mslam.priors.twoview_geometry import focal_guess_intrinsics
     from mslam.priors.twoview_lens import LAMBDAS
 
-    n = len(sequence)
     H, W = sequence[0].shape
     K = focal_guess_intrinsics(W, H)
     out = []
-    for gap in tf.GAPS:
-        for i in np.unique(np.linspace(0, n - 1 - gap, tf.PAIRS_PER_GAP).round()).astype(int):
-            found = tf.pair_samples(sequence[i].rgb, sequence[i + gap].rgb, K, int(i))
-            curve = None if found is None else tf.lens_curve(*found, W, H)
-            if curve is not None:
-                out.append(curve)
+    for i, j in tf.pair_indices(len(sequence)):
+        found = tf.pair_samples(sequence[i].rgb, sequence[j].rgb, K, i)
+        curve = None if found is None else tf.lens_curve(*found, W, H)
+        if curve is not None:
+            out.append(curve)
     return np.asarray(out).reshape(-1, len(LAMBDAS))
 
 

@@ -15,8 +15,8 @@ For RGB-only input without a network (image folders, videos, the RGB stream of T
 3. the pair is **degenerate** — too few inliers (``min_inliers``) or consistent flow vectors
    (``min_flow_frac``), or too little parallax (:func:`homography_parallax` <
    ``min_parallax_px``: the flow is a homography that is a rotation, which covers pure
-   rotation and a tiny baseline, but not a plane seen from two centres) — then no geometry is invented: the pointmaps are fronto-parallel planes,
-   ``C = 1`` everywhere and ``Q_ji = FAILED_Q``, so the match quality ``sqrt(Q_ii Q_ji)``
+   rotation and a tiny baseline, but not a plane seen from two centres) — then no geometry is
+   invented: the pointmaps are fronto-parallel planes, ``C = 1`` everywhere and ``Q_ji = FAILED_Q``, so the match quality ``sqrt(Q_ii Q_ji)``
    stays under upstream's ``Q_conf`` and tracking, edges and relocalisation reject the pair;
 4. otherwise every pixel of i and of j is triangulated in camera i (midpoint) along its
    symmetric flow (:func:`symmetric_flow`: one correspondence per point); pixels that fail
@@ -46,8 +46,8 @@ a pair with parallax, or starts under pure rotation (:mod:`mslam.system.rotation
 
 ``last_status`` is ``"ok"``, ``"same"`` (i is j), ``"few_inliers"`` or ``"parallax"``;
 ``last_info`` has the inlier count, the homography parallax (pixels), the median triangulation
-angle (degrees) and K's mean focal length (pixels) of the last pair; ``last_R_ji`` (3, 3) the rotation of a pair
-flagged ``"parallax"`` (well determined without parallax; the frontend poses such frames by
+angle (degrees) and K's mean focal length (pixels) of the last pair; ``last_R_ji`` (3, 3) the
+rotation of a pair flagged ``"parallax"`` (well determined without parallax; the frontend poses such frames by
 rotation only), else None.
 
 Memory: ``cache`` (per-frame work, per-pair flows) and ``views`` (pointmaps of ``mono`` and the

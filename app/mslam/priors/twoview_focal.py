@@ -3,8 +3,8 @@
 Uncalibrated, the two-view prior assumes a 60° field of view across the long side
 (:func:`~mslam.priors.twoview_geometry.focal_guess_intrinsics`). A camera with another lens
 makes every pair's rotation and structure wrong in a way no later step undoes: re-rendered
-views of the 7-Scenes kitchen with a 50° lens and a hand-held wobble (``benchmarks/novel_views.py``)
-gave an ATE of 4.95 cm with the guess and 0.79 cm calibrated (benchmarks/RESULTS.md).
+views of the 7-Scenes kitchen with a 50° lens and a hand-held wobble
+(``benchmarks/novel_views.py``) gave an ATE of 4.95 cm with the guess and 0.79 cm calibrated (benchmarks/RESULTS.md).
 
 **The estimate** (a pre-pass over the sequence, before the first frame is tracked): for
 pairs ``GAPS`` frames apart, spread over the whole sequence, the fundamental matrix ``F`` of
@@ -32,7 +32,8 @@ a longer focal length.
 
 Public names, in reading order:
     GAPS, SEARCH, MIN_PAIRS, MAX_SPREAD, LONG_BIAS, FocalEstimate, kruppa_cost, pair_samples,
-    pair_cost, lens_curve, estimate_focal, pair_costs, lens_and_pair_costs, decide
+    pair_cost, lens_curve, estimate_focal, pair_costs, pair_indices, lens_and_pair_costs,
+    decide
 """
 
 from __future__ import annotations
@@ -50,7 +51,13 @@ from mslam.datasets.images import division_undistort_points
 from mslam.priors.twoview_flow import guided_flow, sift_keypoints
 from mslam.priors.twoview_geometry import focal_guess_intrinsics, forward_backward_error
 from mslam.priors.twoview_homography import homography_fit
-from mslam.priors.twoview_lens import LAMBDAS, LensEstimate, decide_lens, residual_curve
+from mslam.priors.twoview_lens import (
+    LAMBDAS,
+    LensEstimate,
+    bootstrap_range,
+    decide_lens,
+    residual_curve,
+)
 from mslam_ref.conventions import FloatArray
 
 __all__ = [
@@ -67,6 +74,7 @@ __all__ = [
     "lens_curve",
     "pair_cost",
     "pair_costs",
+    "pair_indices",
     "pair_samples",
 ]
 
@@ -80,8 +88,8 @@ MIN_PAIRS = 12
 #: Largest ratio of the bootstrap's 90 % and 10 % estimates for a determined focal length.
 MAX_SPREAD = 1.15
 #: The estimate runs long: 0-8 % on rendered videos of known focal length, 10-25 % on the
-#: 7-Scenes clip's variants (2026-11-27, benchmarks/RESULTS.md). A range that reaches into [guess, LONG_BIAS · guess] is no
-#: evidence against the guess.
+#: 7-Scenes clip's variants (2026-11-27, benchmarks/RESULTS.md). A range that reaches into
+#: [guess, LONG_BIAS · guess] is no evidence against the guess.
 LONG_BIAS = 1.15
 #: Flow vectors used per pair: forward–backward error below FB_PX pixels, at most SAMPLES.
 FB_PX = 0.3
@@ -201,17 +209,21 @@ def pair_costs(frames: FrameSequence, seed: int = 0) -> tuple[FloatArray, float]
     return lens_and_pair_costs(frames, seed)[:2]
 
 
+def pair_indices(n: int) -> list[tuple[int, int]]:
+    """``(i, j)`` frame indices of the pre-pass's pairs in a sequence of ``n`` frames: for each
+    gap of ``GAPS`` (shorter than the sequence), up to ``PAIRS_PER_GAP`` pairs spread evenly."""
+    return [(int(i), int(i) + gap) for gap in GAPS if n > gap
+            for i in np.unique(np.linspace(0, n - 1 - gap, PAIRS_PER_GAP).round())]  # fmt: skip
+
+
 def lens_and_pair_costs(
     frames: FrameSequence, seed: int = 0
 ) -> tuple[FloatArray, float, LensEstimate]:
     """``(costs (P, len(SEARCH)), guess_px, lens)``: the lens of the pairs of the module
     docstring, then :func:`pair_cost` of those that have epipolar geometry (their end points
     undistorted by the lens where it is used), and the 60° guess."""
-    n = len(frames)
-    pairs = [(int(i), int(i) + gap) for gap in GAPS if n > gap
-             for i in np.unique(np.linspace(0, n - 1 - gap, PAIRS_PER_GAP).round())]  # fmt: skip
     size, jobs = None, []
-    for i, j in pairs:
+    for i, j in pair_indices(len(frames)):
         try:
             a, b = frames[i], frames[j]
         except (OSError, ValueError, cv2.error):
@@ -246,9 +258,7 @@ def decide(costs: FloatArray, guess: float, seed: int = 0) -> FocalEstimate:
         why = f"{P} pairs with epipolar geometry (< {MIN_PAIRS}): the 60° guess is used"
         return FocalEstimate(guess, None, None, None, P, False, why)
     best = int(np.argmin(costs.sum(0)))
-    rng = np.random.default_rng(seed)
-    boot = [int(np.argmin(costs[rng.integers(0, P, P)].sum(0))) for _ in range(BOOTSTRAP)]
-    lo, hi = np.percentile(SEARCH[boot], [10, 90]) * guess
+    lo, hi = (x * guess for x in bootstrap_range(costs, SEARCH, seed, BOOTSTRAP))
     est = float(SEARCH[best] * guess)
     if best in (0, len(SEARCH) - 1):
         why = "at the end of the searched span: the 60° guess is used"

@@ -19,7 +19,8 @@ The maths of :mod:`mslam.priors.twoview`, image pair (i, j) with intrinsics K:
 
 Public names, in reading order:
     focal_guess_intrinsics, forward_backward_error, symmetric_flow, flow_consistency,
-    essential_pose, sampson_residuals, refine_pose, homography_parallax, triangulate_midpoint, reprojection_error
+    essential_pose, sampson_residuals, sampson_distances, refine_pose, homography_parallax,
+    triangulate_midpoint, reprojection_error
 """
 
 from __future__ import annotations
@@ -38,6 +39,7 @@ __all__ = [
     "homography_parallax",
     "refine_pose",
     "reprojection_error",
+    "sampson_distances",
     "sampson_residuals",
     "symmetric_flow",
     "flow_consistency",
@@ -192,7 +194,13 @@ def sampson_residuals(
     """
     tx = np.array([[0, -t_ji[2], t_ji[1]], [t_ji[2], 0, -t_ji[0]], [-t_ji[1], t_ji[0], 0]])
     Kinv = np.linalg.inv(K)
-    F = Kinv.T @ tx @ R_ji @ Kinv
+    return sampson_distances(Kinv.T @ tx @ R_ji @ Kinv, uv_i, uv_j)
+
+
+def sampson_distances(F: FloatArray, uv_i: FloatArray, uv_j: FloatArray) -> FloatArray:
+    """Signed Sampson distances (pixels) of correspondences to a fundamental matrix ``F``
+    (3, 3) with ``x_jᵀ F x_i = 0`` (formula of :func:`sampson_residuals`); ``uv_i``, ``uv_j``
+    (N, 2); returns (N,)."""
     ones = np.ones((len(uv_i), 1))
     xi, xj = np.hstack([uv_i, ones]), np.hstack([uv_j, ones])
     Fxi, Ftxj = xi @ F.T, xj @ F

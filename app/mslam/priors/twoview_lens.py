@@ -25,7 +25,7 @@ of it (not used: undistorting the clip by ``λ = ±0.1`` made its ATE worse, 2.4
 3.55 cm); on the distorted renders it is 1.32–1.87 times worse.
 
 Public names, in reading order:
-    LAMBDAS, MIN_GAIN, LensEstimate, residual_curve, decide_lens
+    LAMBDAS, MIN_GAIN, LensEstimate, bootstrap_range, residual_curve, decide_lens
 """
 
 from __future__ import annotations
@@ -36,9 +36,17 @@ import cv2
 import numpy as np
 
 from mslam.datasets.images import division_undistort_points
+from mslam.priors.twoview_geometry import sampson_distances
 from mslam_ref.conventions import FloatArray
 
-__all__ = ["LAMBDAS", "MIN_GAIN", "LensEstimate", "decide_lens", "residual_curve"]
+__all__ = [
+    "LAMBDAS",
+    "MIN_GAIN",
+    "LensEstimate",
+    "bootstrap_range",
+    "decide_lens",
+    "residual_curve",
+]
 
 #: Division coefficients searched, steps of 0.025 (image half diagonal = 1): at ``λ = -0.4`` a
 #: corner of the undistorted image comes from 0.76 of the half diagonal (a strong barrel lens).
@@ -80,11 +88,16 @@ class LensEstimate:
         return {**asdict(self), "lam_in_use": self.lam_in_use}
 
 
-def _sampson(F: FloatArray, a: FloatArray, b: FloatArray) -> FloatArray:
-    A, B = np.c_[a, np.ones(len(a))], np.c_[b, np.ones(len(b))]
-    Fa, Ftb = A @ F.T, B @ F
-    num = (B * Fa).sum(1) ** 2
-    return num / np.maximum(Fa[:, 0] ** 2 + Fa[:, 1] ** 2 + Ftb[:, 0] ** 2 + Ftb[:, 1] ** 2, 1e-300)
+def bootstrap_range(
+    curves: FloatArray, grid: FloatArray, seed: int = 0, draws: int = BOOTSTRAP
+) -> tuple[float, float]:
+    """10 % and 90 % of the minimum of ``curves`` (P, len(grid)) summed over pairs resampled
+    with replacement ``draws`` times, in units of ``grid``."""
+    P = len(curves)
+    rng = np.random.default_rng(seed)
+    boot = [int(np.argmin(curves[rng.integers(0, P, P)].sum(0))) for _ in range(draws)]
+    lo, hi = np.percentile(grid[boot], [10, 90])
+    return float(lo), float(hi)
 
 
 def residual_curve(uv_i: FloatArray, uv_j: FloatArray, W: int, H: int) -> FloatArray | None:
@@ -101,7 +114,7 @@ def residual_curve(uv_i: FloatArray, uv_j: FloatArray, W: int, H: int) -> FloatA
             return None
         if F is None or F.shape != (3, 3) or not np.all(np.isfinite(F)):
             return None
-        out[n] = np.median(_sampson(np.asarray(F, np.float64), a, b))
+        out[n] = np.median(sampson_distances(np.asarray(F, np.float64), a, b) ** 2)
     return out if np.all(np.isfinite(out)) and out.min() > 0 else None
 
 
@@ -116,9 +129,7 @@ def decide_lens(curves: FloatArray, seed: int = 0) -> LensEstimate:
     best = int(np.argmin(total))
     zero = int(np.argmin(np.abs(LAMBDAS)))
     gain = float(total[zero] / total[best])
-    rng = np.random.default_rng(seed)
-    boot = [int(np.argmin(rel[rng.integers(0, P, P)].sum(0))) for _ in range(BOOTSTRAP)]
-    lo, hi = (float(x) for x in np.percentile(LAMBDAS[boot], [10, 90]))
+    lo, hi = bootstrap_range(rel, LAMBDAS, seed)
     lam = float(LAMBDAS[best])
 
     def verdict(used: bool, why: str) -> LensEstimate:
