@@ -6,7 +6,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from tolerances import FLOW_PX
+from tolerances import FLOW_PX, THIRD_VIEW_DIRECTION_DEG
 
 from mslam.datasets.synthetic import make_sequence
 from mslam.priors.twoview import TwoViewPrior, TwoViewPriorConfig
@@ -20,7 +20,8 @@ from mslam.priors.twoview_flow import (
     sift_keypoints,
     sparse_matches,
 )
-from mslam.priors.twoview_planar import choose_pose, pose_candidates
+from mslam.priors.twoview_geometry import focal_guess_intrinsics
+from mslam.priors.twoview_planar import ReferenceDepths, choose_pose, pose_candidates
 from mslam_ref import sim3, so3
 from mslam_ref.pointmap import intrinsics_from_fov
 
@@ -191,3 +192,43 @@ def test_a_self_consistent_wrong_flow_loses_to_the_flow_that_reproduces_the_matc
     assert match_agreement(F_plain, uv_i, uv_j, cfg.ransac_px) < cfg.min_agreement
     assert guided
     assert match_agreement(F_ij, uv_i, uv_j, cfg.ransac_px) >= cfg.min_agreement
+
+
+def test_reference_depths_keep_the_widest_angle():
+    refs = ReferenceDepths(2**20)
+    wide, narrow, wider = np.full((H, W), 1.0), np.full((H, W), 2.0), np.full((H, W), 3.0)
+    refs.offer(7, wide, 2.0)
+    refs.offer(7, narrow, 0.5)  # a later, narrower pair does not replace it
+    np.testing.assert_array_equal(refs.depth(7, (H, W)), wide)
+    refs.offer(7, wider, 2.5)
+    np.testing.assert_array_equal(refs.depth(7, (H, W)), wider)
+    assert refs.depth(7, (H // 2, W // 2)) is None and refs.depth(8, (H, W)) is None
+
+
+def _pose_dir_err(prior, loop, f, kf):
+    """Translation-direction error (degrees) of the prior's pose of the pair (f, kf)."""
+    prior.pair(loop[f], loop[kf])
+    key = ("pose", hash(loop[f].rgb.tobytes()), hash(loop[kf].rgb.tobytes()))
+    _, t_ji, *_ = prior.cache.peek(key)  # X_kf = R_ji X_f + t_ji: f's centre in kf's camera
+    t_gt = sim3.mul(sim3.inv(np.asarray(loop.T_WC[kf])), np.asarray(loop.T_WC[f]))[:3]
+    return _dir_err_deg(t_ji, t_gt)
+
+
+def test_third_view_with_the_focal_length_of_the_video(loop):
+    """A wall-facing pair of the loop (frame 105 against 101) has two hypotheses its flow
+    cannot tell apart, and the lowest Sampson cost is the wrong one. Uncalibrated, with the
+    focal length from the video (``focal_scale``), the depths of frame 101 from an earlier
+    pair (101 against 87) choose the right one; with the guess the third view stays off."""
+    scale = loop.K[0, 0] / focal_guess_intrinsics(W, H)[0, 0]
+    errs = {}
+    for name, third_view in [("third view", True), ("pair alone", False)]:
+        prior = TwoViewPrior(cfg=TwoViewPriorConfig(third_view=third_view), focal_scale=scale)
+        assert prior.intrinsics_known()
+        prior.pair(loop[101], loop[87])
+        errs[name] = _pose_dir_err(prior, loop, 105, 101)
+        assert prior.last_info["ambiguous"]
+    assert errs["third view"] < THIRD_VIEW_DIRECTION_DEG
+    assert errs["pair alone"] > 4 * THIRD_VIEW_DIRECTION_DEG
+    guess = TwoViewPrior()
+    guess.pair(loop[101], loop[87])
+    assert not guess.intrinsics_known() and guess._remembered_depth(loop[101], (H, W)) is None

@@ -19,10 +19,14 @@ essential-matrix pose and both homography decompositions, each refined on Sampso
 :func:`choose_pose` keeps the candidates whose cost is within ``ambiguity`` of the best (the
 ones the pair itself cannot tell apart) and picks among them the one whose triangulated
 depths of image i and j agree best (up to scale) with their remembered depths. Without a remembered
-view, the lowest cost wins.
+view, the lowest cost wins. :class:`ReferenceDepths` remembers, per image, the depth of its
+reconstruction with the widest median triangulation angle so far: the best-determined one, so
+that a later narrow pair that chose a wrong hypothesis does not become the reference (on the
+synthetic loop, 240 frames, focal length from the video: ATE 8.7 cm with the latest pair's
+depth, 5.5 cm with the widest; 2026-11-27).
 
 Public names, in reading order:
-    pose_candidates, depth_disagreement, choose_pose
+    pose_candidates, depth_disagreement, choose_pose, ReferenceDepths
 """
 
 from __future__ import annotations
@@ -30,10 +34,11 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from mslam.priors.cache import ByteLRU
 from mslam.priors.twoview_geometry import refine_pose, sampson_residuals, triangulate_midpoint
 from mslam_ref.conventions import FloatArray
 
-__all__ = ["choose_pose", "depth_disagreement", "pose_candidates"]
+__all__ = ["ReferenceDepths", "choose_pose", "depth_disagreement", "pose_candidates"]
 
 
 #: Correspondences each hypothesis is refined on (a regular subsample of the inliers).
@@ -166,3 +171,26 @@ def choose_pose(
               for R, t, _ in tied]  # fmt: skip
     k = int(np.argmin(scores))
     return tied[k][0], tied[k][1], True
+
+
+class ReferenceDepths:
+    """Per image, the depth of its widest-angle two-view reconstruction (module docstring).
+
+    Args:
+        max_bytes: bound of the store (a ``ByteLRU``; least recently stored images go first).
+    """
+
+    def __init__(self, max_bytes: int) -> None:
+        self._store = ByteLRU(max_bytes)
+
+    def offer(self, index: int, z: FloatArray, angle_deg: float) -> None:
+        """Keep depth ``z`` (H, W) of image ``index``, triangulated at a median angle of
+        ``angle_deg``, unless an earlier one of the same size was wider."""
+        old = self._store.peek(index)
+        if old is None or old[0].shape != z.shape or angle_deg >= old[1]:
+            self._store.put(index, (np.array(z, np.float64), float(angle_deg)))
+
+    def depth(self, index: int, shape: tuple[int, int]) -> FloatArray | None:
+        """The kept depth of image ``index`` when it is ``shape`` (H, W), else None."""
+        ref = self._store.peek(index)
+        return None if ref is None or ref[0].shape != tuple(shape) else ref[0]
