@@ -203,6 +203,13 @@ def test_reference_depths_keep_the_widest_angle():
     refs.offer(7, wider, 2.5)
     np.testing.assert_array_equal(refs.depth(7, (H, W)), wider)
     assert refs.depth(7, (H // 2, W // 2)) is None and refs.depth(8, (H, W)) is None
+    # Looked up, a reference outlives images stored after it (a keyframe's, in a long run).
+    small = ReferenceDepths(3 * wide.nbytes + 100)
+    small.offer(0, wide, 2.0)
+    for k in range(1, 6):
+        small.offer(k, narrow, 1.0)
+        assert small.depth(0, (H, W)) is not None
+    assert small.depth(1, (H, W)) is None  # the least recently used went instead
 
 
 def _pose_dir_err(prior, loop, f, kf):

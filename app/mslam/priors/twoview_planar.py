@@ -177,7 +177,8 @@ class ReferenceDepths:
     """Per image, the depth of its widest-angle two-view reconstruction (module docstring).
 
     Args:
-        max_bytes: bound of the store (a ``ByteLRU``; least recently stored images go first).
+        max_bytes: bound of the store (a ``ByteLRU``: the images least recently stored or
+            looked up go first, so a keyframe's reference stays while frames are paired with it).
     """
 
     def __init__(self, max_bytes: int) -> None:
@@ -192,5 +193,7 @@ class ReferenceDepths:
 
     def depth(self, index: int, shape: tuple[int, int]) -> FloatArray | None:
         """The kept depth of image ``index`` when it is ``shape`` (H, W), else None."""
-        ref = self._store.peek(index)
+        if index not in self._store:
+            return None
+        ref = self._store.get(index, lambda: None)  # a hit, now the most recent entry
         return None if ref is None or ref[0].shape != tuple(shape) else ref[0]
