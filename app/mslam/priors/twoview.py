@@ -287,8 +287,8 @@ class TwoViewPrior:
             self.last_status = "few_inliers"
             return None
         self.last_status = "ok"
-        self._remember(frame_i, X_ii, C_ii)
-        self._remember(frame_j, X_ji @ R.T + s * t, C_ji)  # X_jj = R_ji X_ji + s t_ji
+        self._remember(frame_i, X_ii, C_ii, angle)
+        self._remember(frame_j, X_ji @ R.T + s * t, C_ji, angle)  # X_jj = R_ji X_ji + s t_ji
         return X_ii, C_ii, X_ji, C_ji
 
     def _reverse(self, key: tuple):
@@ -323,10 +323,10 @@ class TwoViewPrior:
         key = lambda: ("sift", hash(frame.rgb.tobytes()))
         return lambda: self._cached(key(), lambda: sift_keypoints(frame.rgb, self.cfg.guide))
 
-    def _remember(self, frame: Frame, X: FloatArray, C: FloatArray) -> None:
+    def _remember(self, frame: Frame, X: FloatArray, C: FloatArray, angle_deg: float) -> None:
         X = X / np.median(np.linalg.norm(X, axis=-1))
         self.views.put(int(frame.index), (X, C))
-        self.refs.offer(int(frame.index), X[..., 2], self.last_info.get("angle_deg", 0.0))
+        self.refs.offer(int(frame.index), X[..., 2], angle_deg)
 
     def intrinsics_known(self) -> bool:
         """The focal length is the calibration's or the video's own (``focal_scale``)."""
