@@ -14,6 +14,9 @@ prior accepts them) whose images are the clip's colour images changed in one way
 * ``dark`` — frames 70-84 nearly black with sensor noise (a covered lens, a light going out);
 * ``cut`` — frames 0-74, then 149 back to 75 (the video cuts to the other end of the walk and
   comes back over it);
+* ``away`` — frames 0-74, then 24 frames of somewhere else (the procedural room of
+  ``synthetic:loop``, rendered at 160x120 and enlarged), then frames 75-149: the camera turns
+  to another place for almost a second and comes back (no ground truth for the 24 frames);
 * ``drops`` — frames 50-53 and 100-104 left out (a video dropping frames);
 * ``res320`` — every frame at 320x240;
 * ``wide`` — the central 640x360 pixels (16:9);
@@ -69,6 +72,8 @@ PAUSE_AT = 75
 DROPPED = set(range(50, 54)) | set(range(100, 105))
 #: Frames of ``dark`` that are nearly black.
 DARK = range(70, 85)
+#: ``away``: frames of somewhere else, inserted before clip frame ``AWAY_AT``.
+AWAY_FRAMES, AWAY_AT = 24, 75
 #: Motion-blur length of ``blur`` (pixels at 640x480).
 BLUR_PX = 15
 #: JPEG quality of ``jpeg``.
@@ -103,6 +108,7 @@ NAMES = (
     "dup",
     "dark",
     "cut",
+    "away",
     "drops",
     "res320",
     "wide",
@@ -137,6 +143,10 @@ def _order(name: str, n: int) -> list[int]:
         return [i for i in range(n) if i not in DROPPED]
     if name == "cut":
         return list(range(n // 2)) + list(range(n - 1, n // 2 - 1, -1))
+    if name == "away":  # negative: the away frames, -1 first
+        return (
+            list(range(AWAY_AT)) + list(range(-1, -AWAY_FRAMES - 1, -1)) + list(range(AWAY_AT, n))
+        )
     if name == "every3noise8":
         return list(range(0, n, FAST_STRIDE))
     return list(range(n))
@@ -227,11 +237,15 @@ def write_variant(clip: Path, out: Path, name: str) -> Path:
         return path
     rgb_lines, gt_lines = [], []
     for k, i in enumerate(_order(name, len(rgb))):
+        file = dst / "rgb" / f"{k:06d}.png"
+        t = k * DT
+        if i < 0:  # somewhere else: no ground truth
+            cv2.imwrite(str(file), _away_image(-1 - i, cv2.imread(str(rgb[0])).shape))
+            rgb_lines.append(f"{t:.6f} rgb/{file.name}")
+            continue
         src = rgb[i]
         img = _image_op(name, k)(cv2.imread(str(src)))
-        file = dst / "rgb" / f"{k:06d}.png"
         cv2.imwrite(str(file), img)
-        t = k * DT
         stem = src.name.split(".color.")[0]
         T = matrix_to_T_WC(_pose(name, read_pose_matrix(clip / f"{stem}.pose.txt")))
         rgb_lines.append(f"{t:.6f} rgb/{file.name}")
@@ -239,6 +253,16 @@ def write_variant(clip: Path, out: Path, name: str) -> Path:
     (dst / "rgb.txt").write_text("\n".join(rgb_lines) + "\n")
     (dst / "groundtruth.txt").write_text("\n".join(gt_lines) + "\n")
     return dst
+
+
+def _away_image(j: int, shape: tuple[int, ...]) -> np.ndarray:
+    """Frame ``j`` of the ``away`` insert: ``synthetic:loop`` (96 frames, 160x120), enlarged to
+    the clip's ``shape`` (BGR uint8)."""
+    from mslam.datasets.synthetic import make_sequence
+
+    rgb = make_sequence("loop", n_frames=96, width=160, height=120)[j].rgb
+    big = cv2.resize(rgb, (shape[1], shape[0]), interpolation=cv2.INTER_LINEAR)
+    return cv2.cvtColor(big, cv2.COLOR_RGB2BGR)
 
 
 def table_row(run: Path) -> str:

@@ -205,6 +205,7 @@ class SlamSystem(ParallaxSteps, RotationStart):
             ok = relocalise(
                 frame, self.prior, self.backend, self.cfg.reloc, self.place_relocalised,
                 self.rotation_match if getattr(self.prior, "needs_parallax", False) else None,
+                self.rejoin_map if self.recovery.cfg.merge_maps else None,
             )  # fmt: skip
         if not ok:
             self.stats.lost_frames += 1
@@ -218,6 +219,15 @@ class SlamSystem(ParallaxSteps, RotationStart):
         self.record(frame, k, None, FrameStatus.RELOCALISED)
         self.mode = Mode.TRACKING
         return FrameStatus.RELOCALISED
+
+    def rejoin_map(self, k: int, best: int) -> None:
+        """Relocalised against keyframe ``best`` of another map: new keyframe ``k`` starts a
+        map that continues ``best``'s segment (``Recovery.rejoined``), and the backend reaches
+        back to it (``Recovery.layout``); the current map is left as it stands."""
+        self.recovery.rejoined(int(self.keyframes[k].frame.index), k, best)
+        self.backend.join_map(*self.recovery.layout())
+        self.divergence.new_map()
+        self.merger.reset()
 
     def lose_tracking(self) -> None:
         """Count a tracking failure and switch to relocalisation."""

@@ -18,8 +18,10 @@ after a relocalisation), made by the frontend or, with ``single_thread: False``,
 
 All of it happens inside the current map (``map_start`` on, ``mslam.system.recovery``): the
 keyframes of earlier maps get no new edge and keep their poses, until a merge
-(``mslam.system.merge``) joins the current map to an earlier one (``in_map``). After each step the current
-map's keyframes go through the divergence watch's spread test (``DivergenceMonitor.check_map``).
+(``mslam.system.merge``) joins the current map to an earlier one, or a relocalisation into an
+earlier map (``mslam.system.reloc``) makes that map current again (``in_map``). After each
+step the current map's keyframes go through the divergence watch's spread test
+(``DivergenceMonitor.check_map``).
 
 Public names, in reading order:
     Backend, residual_grid

@@ -250,7 +250,7 @@ class MapMerger:
         recovery.merged({
             "into": into, "frame": int(backend.keyframes[k].frame.index), "keyframe": group[0].edge.i,
             "old_keyframe": group[0].edge.j, "connections": len(group), "scale": float(S[7]),
-            "rot_deg": rot, "translation": float(np.linalg.norm(S[:3])),
+            "rot_deg": rot, "translation": float(np.linalg.norm(S[:3])), "by": "merge",
         })  # fmt: skip
         backend.join_map(*recovery.layout())
         self.pending = []

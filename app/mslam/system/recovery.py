@@ -17,8 +17,10 @@ Maps are consecutive segments of the keyframe store: map ``m`` holds the keyfram
 (rotation, position and Sim(3) scale) of the last frame that had a pose, so the trajectory
 stays in one frame of reference and in the TUM format; but how the new map's orientation,
 position and scale relate to the old map's is only as good as that one pose. The backend
-builds edges and solves inside the current map only, relocalisation searches only its
-keyframes, and the keyframes of earlier maps keep their last poses — until the maps are
+builds edges and solves inside the current map only, relocalisation searches its keyframes
+first (and earlier maps' only when none of them passes: a frame relocalised there makes the run
+continue that map, ``Recovery.rejoined``), and the keyframes of earlier maps keep their last
+poses — until the maps are
 merged (``mslam.system.merge``, ``recovery.merge_maps``): while the current map is not the
 first, each of its new keyframes looks for verified connections to the keyframes of earlier
 maps, and once two of them agree on one Sim(3) correction, every keyframe of the current map
@@ -158,6 +160,19 @@ class Recovery:
         self._lost_run = 0
         self._refused.clear()
 
+    def rejoined(self, index: int, first_keyframe: int, old_keyframe: int) -> None:
+        """Record that frame ``index``, relocalised against keyframe ``old_keyframe`` of
+        another map, continues that map's segment: its keyframe ``first_keyframe`` starts map
+        ``len(maps)``, merged with no correction (the frame took the old keyframe's pose)."""
+        into = self.segment_of(self.map_of(old_keyframe))
+        reason = f"tracking was lost and the frame relocalised against keyframe {old_keyframe}"
+        self.new_map(index, first_keyframe, f"{reason} of map {into}")
+        self.maps[-1]["merged"] = {
+            "into": into, "frame": int(index), "keyframe": int(first_keyframe),
+            "old_keyframe": int(old_keyframe), "connections": 1, "scale": 1.0, "rot_deg": 0.0,
+            "translation": 0.0, "by": "relocalisation",
+        }  # fmt: skip
+
     def segment_of(self, m: int) -> int:
         """The segment of map ``m``, named by its first map: ``m``, or the first map of the
         chain of merges it was joined to."""
@@ -213,6 +228,8 @@ def _map_warning(m: Mapping[str, Any]) -> str:
     """The summary's sentence for new map ``m`` (an entry of :attr:`Recovery.maps`)."""
     head = f"a new map (map {m['map']}) was started at frame {m['first_frame']}: {m['reason']}; "
     g = m["merged"]
+    if g is not None and g.get("by") == "relocalisation":
+        return head + f"it continues map {g['into']} in that map's frame of reference"
     if g is None:
         return head + (
             "it is anchored at the last posed frame's pose and scale, not aligned to the "

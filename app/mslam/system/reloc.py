@@ -24,6 +24,16 @@ first: on ``synthetic:rotation:60`` (96x72, two-view prior, tracking given up af
 the strict rule refused every frame until a new map started 55° off; without it frame 31 was
 relocalised 3.3° from its true orientation (2026-11-26).
 
+With several maps (``mslam.system.recovery``) the candidates of the current map are tried
+first. When none passes, the candidates from other maps are tried the same way, and a frame
+accepted there makes the run continue that map (``rejoin``: ``SlamSystem.rejoin_map``; the
+map being left keeps its poses and stays apart, as a merge leaves the maps it passes over).
+That is how a camera that was lost, started a map somewhere new and came back is taken home:
+``mslam.system.merge`` needs two agreeing connections from keyframes of the new map, which a
+camera that is lost again at once never makes. ``synthetic:detour`` (72 frames, two-view
+prior, 2026-11-27) posed 3 of the 18 frames after its return, 17 with this (3.4 cm from the
+truth under the first map's alignment).
+
 A keyframe made under pure rotation has no depth (``mslam.system.rotation_start``), so no
 edge to it can be verified; when no edge is accepted, a candidate without depth whose pair
 with the frame is a rotation (the prior's ``"parallax"`` verdict with a rotation) is accepted,
@@ -37,9 +47,11 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+import numpy as np
+
 from mslam.config import RelocConfig
 from mslam.datasets.frame import Frame
-from mslam.priors.base import Prior
+from mslam.priors.base import PairPrediction, Prior
 from mslam.system.global_opt import Backend
 from mslam_ref import sim3
 
@@ -53,6 +65,7 @@ def relocalise(
     cfg: RelocConfig,
     place: Callable[[int, int], None] | None = None,
     rotation_match: Callable[[int, int], bool] | None = None,
+    rejoin: Callable[[int, int], None] | None = None,
 ) -> bool:
     """Try to relocalise ``frame``; True (and a new keyframe, the last one) on success.
 
@@ -68,6 +81,10 @@ def relocalise(
         rotation_match: ``(new keyframe, candidate) -> bool``, asked in ranking order when no
             edge is accepted: the first candidate it accepts is (a keyframe without depth,
             whose image the frame's is turned from: ``RotationStart.rotation_match``).
+        rejoin: ``(new keyframe, best candidate) -> None``; given, the keyframes of other maps
+            are tried when none of the current map's passes, and on success it is called
+            (before ``place`` and the solve) to make the candidate's map the current one
+            (``SlamSystem.rejoin_map``). None: the current map only.
 
     Returns:
         whether the frame was relocalised.
@@ -76,10 +93,46 @@ def relocalise(
         X, C = prior.mono(frame)
         p = prior.pair(frame, frame)
     features = backend.retrieval.features(p.D_ii, p.Q_ii)
-    # Keyframes of the current map only (an earlier map joins it only by a merge, system.merge).
-    candidates = [c for c in backend.retrieval.query(features) if backend.in_map(c)]
+    ranked = backend.retrieval.query(features)
+    # The current map first; an earlier map only when none of the current map's candidates
+    # passes and the caller can take the frame there (``rejoin``).
+    for candidates, other in (
+        ([c for c in ranked if backend.in_map(c)], False),
+        ([c for c in ranked if not backend.in_map(c)] if rejoin is not None else [], True),
+    ):
+        best = _attempt(frame, (X, C, p), features, candidates, backend, cfg, rotation_match)
+        if best is None:
+            continue
+        n = len(backend.keyframes) - 1
+        if other and rejoin is not None:
+            rejoin(n, best)
+        if place is not None:
+            place(n, best)
+        with backend.stats.timer("backend"):
+            backend.solve()
+        return True
+    return False
+
+
+def _attempt(
+    frame: Frame,
+    pointmap: tuple[np.ndarray, np.ndarray, PairPrediction],
+    features: np.ndarray,
+    candidates: list[int],
+    backend: Backend,
+    cfg: RelocConfig,
+    rotation_match: Callable[[int, int], bool] | None,
+) -> int | None:
+    """The frame as a temporary keyframe with edges to ``candidates`` (ranked best first);
+    on success it stays (the last keyframe, in the retrieval database, at the pose of the best
+    accepted candidate) and that candidate is returned; otherwise it is removed and None.
+
+    ``pointmap``: the frame's mono ``X`` (H, W, 3), ``C`` (H, W) and its self-pair (``D_ii``,
+    ``Q_ii``); ``features``: its retrieval features.
+    """
     if not candidates:
-        return False
+        return None
+    X, C, p = pointmap
     n = backend.add_keyframe(frame, sim3.identity(), X, C, p.D_ii, p.Q_ii)
     before = len(backend.graph.edges)
     backend.graph.add_factors(
@@ -96,14 +149,10 @@ def relocalise(
         accepted = next(([c] for c in candidates if rotation_match(n, c)), [])
     if not accepted or (cfg.strict and candidates[0] not in accepted):
         backend.remove_last_keyframe()
-        return False
+        return None
     backend.retrieval.update(features)  # query + insert: the database id becomes n
     kf = backend.keyframes[n]
     best = next(c for c in candidates if c in accepted)
     kf.T_WC = backend.keyframes[best].T_WC.copy()
     kf.T_WC_init = kf.T_WC.copy()
-    if place is not None:
-        place(n, best)
-    with backend.stats.timer("backend"):
-        backend.solve()
-    return True
+    return int(best)
