@@ -125,8 +125,9 @@ def rgbd_odometry_ate(sequence: Any) -> dict[str, Any]:
         return out
     out.update(frames=len(res.timestamps), failures=res.failures, seconds=res.seconds)
     out["_result"] = res  # the trajectory itself (baseline_odometry.txt, the plot); not JSON
-    if sequence.T_WC is not None and len(res.timestamps) >= 3:
-        a = evaluate.ate(res.timestamps, res.T_WC, sequence.timestamps, sequence.T_WC, "sim3")
+    truth = sequence.ground_truth()
+    if truth is not None and len(res.timestamps) >= 3:
+        a = evaluate.ate(res.timestamps, res.T_WC, truth[1], truth[2], "sim3")
         out["ate"] = a.to_dict()
         out["ate_rmse"] = a.rmse
     return out

@@ -110,8 +110,8 @@ def _read(path: Path) -> tuple[Any, Any]:
     from mslam import formats as io
 
     if path.is_dir():
-        seq = _open_rgbd(path, need_depth=False)
-        return seq.timestamps, seq.T_WC
+        _, stamps, poses = _open_rgbd(path, need_depth=False).ground_truth()
+        return stamps, poses
     if not path.is_file():
         raise UserError(f"{path}: no such file")
     try:
@@ -174,8 +174,8 @@ def _open_rgbd(folder: Path, need_depth: bool = True) -> Any:
         seq = load_sequence(folder)
     except (OSError, ValueError) as exc:
         raise UserError(f"{folder}: {exc}") from None
-    if seq.T_WC is None:
-        raise UserError(f"{folder}: no ground-truth pose for every frame")
+    if seq.ground_truth() is None:
+        raise UserError(f"{folder}: no ground-truth pose for any frame")
     if need_depth and (seq.K is None or not seq.has_depth):
         raise UserError(f"{folder}: needs depth images and intrinsics for --truth-rgbd")
     return seq

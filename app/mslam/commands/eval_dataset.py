@@ -130,13 +130,14 @@ def map_scores(path: Path, out: Path) -> dict[str, Any]:
     if done.is_file():
         return json.loads(done.read_text())
     seq = load_sequence(path)
-    if seq.T_WC is None:
-        raise ValueError(f"{path}: no ground-truth pose for every frame")
+    gt = seq.ground_truth()
+    if gt is None:
+        raise ValueError(f"{path}: no ground-truth pose for any frame")
     ts, T = io.read_tum(out / "trajectory.txt")
     xyz = io.read_ply(out / "reconstruction.ply")[0]
     truth = truth_from_rgbd(seq, t_range=(float(ts.min()) - 0.01, float(ts.max()) + 0.01))
-    m, _, _ = evaluate_map(xyz, ts, T, seq.timestamps, seq.T_WC, truth)
-    m_icp, _, _ = evaluate_map(xyz, ts, T, seq.timestamps, seq.T_WC, truth, refine="icp")
+    m, _, _ = evaluate_map(xyz, ts, T, gt[1], gt[2], truth)
+    m_icp, _, _ = evaluate_map(xyz, ts, T, gt[1], gt[2], truth, refine="icp")
     res = {
         "accuracy_m": m.accuracy,
         "completion_m": m.completion,

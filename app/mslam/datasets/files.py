@@ -91,6 +91,9 @@ class FileSequence(FrameSequence):
         )
         known = [t for t in self._gt if t is not None]
         self.T_WC = np.stack(known) if known and len(known) == len(self._gt) else None
+        if known and self.T_WC is None:
+            nan = np.full(8, np.nan)
+            self.T_WC_partial = np.stack([nan if t is None else t for t in self._gt])
         self.depth_scale = float(calib.depth_scale if calib and calib.depth_scale else depth_scale)
         #: The colour-to-depth registration estimated from edges (``Calibration.colour_auto``):
         #: ``zoom``, ``score``, ``identity_score``, ``applied`` (after :meth:`register_colour`).
@@ -188,4 +191,5 @@ class FileSequence(FrameSequence):
         out.timestamps = self.timestamps[::step]
         out._gt = self._gt[::step]
         out.T_WC = None if self.T_WC is None else self.T_WC[::step]
+        out.T_WC_partial = None if self.T_WC_partial is None else self.T_WC_partial[::step]
         return out

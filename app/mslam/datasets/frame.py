@@ -79,7 +79,10 @@ class FrameSequence:
         K: (3, 3) intrinsics at the image resolution, or None when unknown.
         has_depth: whether frames carry metric depth.
         timestamps: (N,) float64 seconds.
-        T_WC: (N, 8) Sim(3) ground-truth poses (s = 1), or None.
+        T_WC: (N, 8) Sim(3) ground-truth poses (s = 1), or None unless every frame has one.
+        T_WC_partial: (N, 8) the same with NaN rows for the frames without one, when some but
+            not all frames have one (motion capture that starts late, a gap); None otherwise.
+            :meth:`ground_truth` serves both.
         distortion: OpenCV distortion coefficients ``(k1, k2, p1, p2[, k3])`` of the raw
             images, or None (images already undistorted or no calibration).
     """
@@ -89,6 +92,7 @@ class FrameSequence:
     has_depth: bool = False
     timestamps: FloatArray
     T_WC: FloatArray | None = None
+    T_WC_partial: FloatArray | None = None
     distortion: FloatArray | None = None
 
     def __len__(self) -> int:
@@ -110,6 +114,19 @@ class FrameSequence:
     def __iter__(self) -> Iterator[Frame]:
         for i in range(len(self)):
             yield self[i]
+
+    def ground_truth(self) -> tuple[np.ndarray, FloatArray, FloatArray] | None:
+        """The frames that have a ground-truth pose: frame indices (M,), timestamps (M,) and
+        poses (M, 8); None when no frame has one. Evaluations associate estimates with these by
+        timestamp, so a sequence whose ground truth misses some frames is still evaluated."""
+        T = self.T_WC if self.T_WC is not None else self.T_WC_partial
+        if T is None:
+            return None
+        T = np.asarray(T, dtype=np.float64)
+        ok = np.flatnonzero(np.isfinite(T).all(axis=1))
+        if not len(ok):
+            return None
+        return ok, np.asarray(self.timestamps, dtype=np.float64)[ok], T[ok]
 
     @property
     def has_ground_truth(self) -> bool:

@@ -31,8 +31,16 @@ __all__ = [
 ]
 
 
+def _rows(T: FloatArray | None, keep: np.ndarray | slice) -> FloatArray | None:
+    """The rows ``keep`` of the per-frame poses ``T`` (N, 8), or None."""
+    return None if T is None else np.asarray(T)[keep]
+
+
 def _copy_metadata(view: FrameSequence, base: FrameSequence) -> None:
+    """Name, intrinsics, depth, distortion, image size, colour registration and the partial
+    ground truth (views that drop frames slice the latter again)."""
     view.name, view.K = base.name, base.K
+    view.T_WC_partial = base.T_WC_partial
     view.has_depth, view.distortion = base.has_depth, base.distortion
     for attr in ("width", "height", "colour_registration"):
         if hasattr(base, attr):
@@ -51,6 +59,7 @@ class SubsampledSequence(FrameSequence):
         self._keep = np.arange(0, len(base), self.step)
         self.timestamps = np.asarray(base.timestamps)[self._keep]
         self.T_WC = None if base.T_WC is None else np.asarray(base.T_WC)[self._keep]
+        self.T_WC_partial = _rows(base.T_WC_partial, self._keep)
 
     def _load(self, i: int) -> Frame:
         return dataclasses.replace(self.base[int(self._keep[i])], index=i)
@@ -87,6 +96,7 @@ class TruncatedSequence(FrameSequence):
         _copy_metadata(self, base)
         self.timestamps = np.asarray(base.timestamps)[:n]
         self.T_WC = None if base.T_WC is None else np.asarray(base.T_WC)[:n]
+        self.T_WC_partial = _rows(base.T_WC_partial, slice(0, n))
 
     def _load(self, i: int) -> Frame:
         return self.base[i]

@@ -114,24 +114,24 @@ def evaluate_run(system: SlamSystem, sequence: FrameSequence) -> dict[str, Any]:
     """ATE (Sim(3)) of all frames and of the keyframes against ground truth, path lengths.
 
     ``path_length`` is the ground truth's, summed over steps between consecutive frames that
-    both have a pose (or the estimate's when there is no ground truth).
+    both have a pose and ground truth (``FrameSequence.ground_truth``; else the estimate's).
     """
     from mslam import evaluate, rotation_metrics
 
     idx, ts, T = system.frame_poses()
     out: dict[str, Any] = {"path_length_est": _path_length(T[:, :3]) if len(T) else 0.0}
-    gt = sequence.T_WC
-    if gt is None or len(T) < 3:
+    truth = sequence.ground_truth()
+    if truth is None or len(T) < 3:
         out["path_length"] = out["path_length_est"]
         return out
-    gt = np.asarray(gt)
-    gt_ts = np.asarray(sequence.timestamps, dtype=np.float64)
+    gt_idx, gt_ts, gt = truth
     # Ground-truth path over consecutive frames that both have a pose (a relocation jump
     # between lost frames does not count as path).
-    has = np.zeros(len(gt), bool)
-    has[idx[idx < len(gt)]] = True
+    has = np.zeros(len(sequence), bool)
+    has[idx[idx < len(has)]] = True
+    both = has[gt_idx[:-1]] & has[gt_idx[1:]] & (np.diff(gt_idx) == 1)
     steps = np.linalg.norm(np.diff(gt[:, :3], axis=0), axis=1)
-    out["path_length"] = float(steps[has[:-1] & has[1:]].sum())
+    out["path_length"] = float(steps[both].sum())
     out["rotation"] = rotation_metrics.associated_report(ts, T, gt_ts, gt)  # needs no alignment
     try:
         res = evaluate.ate(ts, T, gt_ts, gt, align="sim3")
