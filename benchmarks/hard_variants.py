@@ -17,6 +17,8 @@ prior accepts them) whose images are the clip's colour images changed in one way
 * ``away`` — frames 0-74, then 24 frames of somewhere else (the procedural room of
   ``synthetic:loop``, rendered at 160x120 and enlarged), then frames 75-149: the camera turns
   to another place for almost a second and comes back (no ground truth for the 24 frames);
+* ``walker`` — a textured 200x360 block (a frame of the ``away`` insert) sliding across the
+  image from left to right over frames 40-109 (someone walking through the view);
 * ``drops`` — frames 50-53 and 100-104 left out (a video dropping frames);
 * ``res320`` — every frame at 320x240;
 * ``wide`` — the central 640x360 pixels (16:9);
@@ -74,6 +76,8 @@ DROPPED = set(range(50, 54)) | set(range(100, 105))
 DARK = range(70, 85)
 #: ``away``: frames of somewhere else, inserted before clip frame ``AWAY_AT``.
 AWAY_FRAMES, AWAY_AT = 24, 75
+#: ``walker``: the frames the block crosses, and its size (width, height) at 640x480.
+WALKER_FRAMES, WALKER_SIZE = range(40, 110), (200, 360)
 #: Motion-blur length of ``blur`` (pixels at 640x480).
 BLUR_PX = 15
 #: JPEG quality of ``jpeg``.
@@ -109,6 +113,7 @@ NAMES = (
     "dark",
     "cut",
     "away",
+    "walker",
     "drops",
     "res320",
     "wide",
@@ -184,6 +189,8 @@ def _image_op(name: str, k: int) -> Callable[[np.ndarray], np.ndarray]:
         return lambda im: noise((im.astype(np.float32) * LOWLIGHT_GAIN).astype(np.uint8))
     if name in NOISE_SIGMA:
         return _noise(NOISE_SIGMA[name], NOISE_BLOCK.get(name, 1), k)
+    if name == "walker" and k in WALKER_FRAMES:
+        return lambda im: _walker(im, k)
     if name == "gray":
         return lambda im: cv2.cvtColor(cv2.cvtColor(im, cv2.COLOR_BGR2GRAY), cv2.COLOR_GRAY2BGR)
     if name == "portrait":
@@ -263,6 +270,21 @@ def _away_image(j: int, shape: tuple[int, ...]) -> np.ndarray:
     rgb = make_sequence("loop", n_frames=96, width=160, height=120)[j].rgb
     big = cv2.resize(rgb, (shape[1], shape[0]), interpolation=cv2.INTER_LINEAR)
     return cv2.cvtColor(big, cv2.COLOR_RGB2BGR)
+
+
+def _walker(im: np.ndarray, k: int) -> np.ndarray:
+    """``im`` with the ``walker`` block at its place in written frame ``k``: it enters at the
+    left edge at the first of :data:`WALKER_FRAMES` and leaves at the right after the last."""
+    H, W = im.shape[:2]
+    w, h = (round(v * W / 640) for v in WALKER_SIZE)
+    block = cv2.resize(_away_image(30, im.shape), (w, h), interpolation=cv2.INTER_AREA)
+    t = (k - WALKER_FRAMES.start) / (len(WALKER_FRAMES) - 1)
+    x0, y0 = round(-w + t * (W + w)), H - h
+    a, b = max(x0, 0), min(x0 + w, W)
+    out = im.copy()
+    if b > a:
+        out[y0:, a:b] = block[:, a - x0 : b - x0]
+    return out
 
 
 def table_row(run: Path) -> str:
