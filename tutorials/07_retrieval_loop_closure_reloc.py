@@ -27,7 +27,9 @@
 # 2. the score matrix of a loop: revisited places score high, far-apart ones near zero;
 # 3. how a candidate becomes a loop-closure edge (its match fraction, reference vs fast
 #    matching);
-# 4. relocalisation after the camera is kidnapped to a place already mapped, on a full run.
+# 4. relocalisation after the camera is kidnapped to a place already mapped, on a full run;
+# 5. several maps: a detour through unmapped space starts a second map, and relocalisation
+#    brings the camera back into the first when it returns (an extension of the paper).
 #
 # The local features here are the synthetic prior's 24-D patch descriptors pooled on a grid
 # (MASt3R's encoder tokens in upstream); the codebook is trained by k-means on one image
@@ -46,7 +48,7 @@ from mslam.priors.synthetic import SyntheticPrior, SyntheticPriorConfig
 from mslam.system import open_source, run_slam
 from mslam_ref import matching, retrieval
 from mslam_ref.retrieval_database import RetrievalDatabase
-from mslam_ref.synthetic import jump_indices
+from mslam_ref.synthetic import detour_indices, jump_indices
 
 seq = make_sequence("loop", n_frames=36, width=96, height=72, seed=0)
 prior = SyntheticPrior(seq, SyntheticPriorConfig(seed=0))
@@ -216,6 +218,46 @@ n_posed = len(system.frame_poses()[0])
 print(f"lost at frame {j}, relocalised at frame {reloc[0]}; {n_posed}/{len(status)} frames posed")
 assert status[j] == "lost" and j < reloc[0] <= j + 5
 assert n_posed >= 0.9 * len(status)
+
+# %% [markdown]
+# ## 5. Several maps: a detour, and the way back
+#
+# `synthetic:detour` leaves the mapped arc for the other side of the room (nothing there was
+# mapped), then jumps back and retraces the arc. The paper's system has one map and stays lost
+# through the detour. Here, after `recovery.max_lost_frames` lost frames (4 in this short
+# run; 15 by default) a **new map** starts from the incoming frames, anchored at the last posed
+# frame. When the camera returns, tracking against the detour's map fails, relocalisation
+# finds nothing in it, and then tries the **earlier maps'** keyframes among its retrieval
+# candidates: the first map takes the frame, and the run continues that map (the detour's map
+# stays apart). `summary.json` lists the maps and says so (docs/system.md).
+
+# %%
+cfg_maps = load_config(None, ["recovery.max_lost_frames=4"])
+detour_src = open_source("synthetic:detour:48:96x72", cfg_maps)
+system, meta = run_slam(detour_src, cfg_maps, load_kernels("fast"))
+j1, j2 = detour_indices(len(detour_src.sequence))
+maps = system.recovery.report(system.poses, len(system.keyframes))
+for m in maps["maps"]:
+    print({k: m[k] for k in ("map", "first_frame", "reason", "keyframes", "frames_posed")})
+print(maps["warnings"][-1])
+map_of = [system.recovery.map_of(p.kf) if p.kf >= 0 else -1 for p in system.poses]
+gt = detour_src.sequence.T_WC[:, :3]
+fig, ax = plt.subplots(figsize=(5, 4))
+ax.plot(gt[:, 0], gt[:, 1], "-", color="0.8", lw=1)
+names = ["lost"] + [
+    f"map {m['map']}" + (f" (continues map {m['merged']['into']})" if m["merged"] else "")
+    for m in maps["maps"]
+]
+for m, (c, name) in enumerate(zip(("C3", "C0", "C1", "C2"), names, strict=True), start=-1):
+    k = [i for i, x in enumerate(map_of) if x == m]
+    ax.plot(gt[k, 0], gt[k, 1], "o", color=c, ms=5, label=name)
+ax.set_aspect("equal", adjustable="datalim")
+ax.legend(fontsize=7)
+ax.set_title(f"the map of each frame (detour at frame {j1}, return at {j2})", fontsize=9)
+plt.show()
+last = maps["maps"][-1]["merged"]
+assert last is not None and last["into"] == 0 and last["by"] == "relocalisation"
+assert all(m >= 0 for m in map_of[j2 + 2 :])  # every frame after the return has a pose
 
 # %% [markdown]
 # ## Exercises
