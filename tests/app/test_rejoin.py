@@ -7,7 +7,7 @@ current map, tries the first map's keyframes: the return frame is relocalised th
 map entry records that the run continues the first map (merged by relocalisation, no
 correction), and the retraced frames land where the first map's frame of reference puts them.
 With ``recovery.merge_maps=0`` the maps stay apart and the return frames stay lost until
-another new map starts.
+another new map starts. The background backend (``single_thread: False``) rejoins the same way.
 """
 
 from __future__ import annotations
@@ -88,3 +88,11 @@ def test_a_rejoining_map_is_laid_out_with_the_map_it_continues() -> None:
     assert rec.segment_of(2) == 0 and rec.maps[2]["merged"]["old_keyframe"] == 2
     assert rec.layout() == (0, [(4, 7)])
     assert "continues map 0" in rec.report([], 9)["warnings"][1]
+
+
+def test_the_background_backend_rejoins_too() -> None:
+    _, src, s = _run("single_thread=false")
+    j2 = detour_indices(len(src.sequence))[1]
+    back = s["maps"][-1]
+    assert back["merged"] is not None and back["merged"]["by"] == "relocalisation", s["maps"]
+    assert back["merged"]["into"] == 0 and j2 <= back["first_frame"] <= j2 + 2
