@@ -121,3 +121,33 @@ def test_eth3d_folder_reads_its_calibration_txt(tmp_path) -> None:
     seq = load_sequence(seq_dir)
     assert seq.K[0, 0] == 50.5 and seq.K[1, 2] == 23.5
     assert find_sequences(tmp_path / "eth3d", "eth3d") == [seq_dir]
+
+
+def test_the_rgb_only_path_is_evaluated_with_prior_twoview(tmp_path, capsys) -> None:
+    """``--prior twoview``: the paper's RGB-only setting. A folder without depth fails under
+    the default (RGB-D) prior and is run and scored with ``--prior twoview``; a folder with
+    depth is run from its colour images and still gets the map metrics."""
+    import mslam_fast
+
+    mslam_fast.init("cpu", "f64")
+    root = tmp_path / "root"
+    for name in ("rgb_only", "with_depth"):
+        args = ["synth", "forward", "--out", str(root / name), "--frames", "16"]
+        assert main([*args, "--width", "128", "--height", "96"]) == 0
+    for index in ("depth.txt", "associations.txt"):
+        (root / "rgb_only" / index).unlink()
+    base = ["eval-dataset", str(root), "--dataset", "tum"]
+    assert main([*base, "--out", str(tmp_path / "rgbd")]) == 0
+    rows = {r["sequence"]: r for r in csv.DictReader((tmp_path / "rgbd" / "results.csv").open())}
+    assert (
+        rows["rgb_only"]["status"].startswith("failed") and "twoview" in rows["rgb_only"]["status"]
+    )
+    out = tmp_path / "twoview"
+    assert main([*base, "--out", str(out), "--prior", "twoview"]) == 0
+    rows = {r["sequence"]: r for r in csv.DictReader((out / "results.csv").open())}
+    for name in ("rgb_only", "with_depth"):
+        s = json.loads((out / name / "summary.json").read_text())
+        assert rows[name]["status"] == "ok" and s["prior"] == "twoview", rows[name]
+        assert rows[name]["ate_rmse_m"] != "" and int(rows[name]["frames_posed"]) > 0
+    assert rows["with_depth"]["chamfer_m"] != "" and rows["rgb_only"]["chamfer_m"] == ""
+    assert "twoview prior" in (out / "results.md").read_text()

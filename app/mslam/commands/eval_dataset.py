@@ -2,8 +2,9 @@
 
 ::
 
-    mslam eval-dataset ROOT --dataset NAME --out DIR [--calib] [--config FILE]
-                       [--kernels ref|fast] [--max-frames N] [--set SECTION.KEY=VALUE ...]
+    mslam eval-dataset ROOT --dataset NAME --out DIR [--calib] [--prior rgbd|twoview|mast3r]
+                       [--config FILE] [--kernels ref|fast] [--max-frames N]
+                       [--set SECTION.KEY=VALUE ...]
 
 Upstream ships one evaluation script per dataset (``scripts/eval_tum.sh`` and friends, with and
 without calibration). This is the same in one command:
@@ -13,6 +14,10 @@ without calibration). This is the same in one command:
    ``frame-*.color.*``, EuRoC folders with ``mav0/cam0/data.csv``;
 2. run each with the packaged ``eval_no_calib.yaml`` or, with ``--calib``, ``eval_calib.yaml``
    (the dataset's own intrinsics), writing the usual run outputs into ``DIR/<sequence>/``;
+   the prior is the RGB-D one where a sequence has depth. ``--prior twoview`` evaluates the
+   RGB-only path instead (the paper's own setting; EuRoC has no depth, so it needs it), with
+   the packaged ``twoview.yaml`` (``use_calib`` with ``--calib``); ``--prior mast3r`` the
+   network (``base.yaml`` or ``calib.yaml``);
 3. a sequence that fails (bad files, no depth for the default prior, ...) is reported and
    skipped; a sequence whose ``DIR/<sequence>/summary.json`` exists is not run again, so an
    interrupted evaluation resumes where it stopped;
@@ -98,12 +103,15 @@ def sequence_name(root: Path, seq: Path) -> str:
     return "_".join(rel.parts) if rel.parts and rel.parts != (".",) else seq.resolve().name
 
 
-def run_sequence(path: Path, cfg: Any, kernels: Any, out: Path, max_frames: int | None) -> dict:
-    """One sequence through the system; writes the run outputs, returns the summary."""
+def run_sequence(
+    path: Path, cfg: Any, kernels: Any, out: Path, max_frames: int | None, prior: str | None = None
+) -> dict:
+    """One sequence through the system with ``prior`` (None: the source's default); writes the
+    run outputs, returns the summary."""
     from mslam.config import config_to_dict
     from mslam.system import open_source, run_slam, write_outputs
 
-    source = open_source(str(path), cfg, None, None, max_frames)
+    source = open_source(str(path), cfg, None, prior, max_frames)
     system, meta = run_slam(source, cfg, kernels, progress=False)
     if meta["interrupted"]:
         raise KeyboardInterrupt  # no summary.json: a resumed evaluation runs it again
@@ -242,6 +250,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--dataset", required=True, choices=tuple(DATASETS), help="dataset layout")
     p.add_argument("--out", required=True, type=Path, metavar="DIR", help="output folder")
     p.add_argument("--calib", action="store_true", help="calibrated mode (dataset intrinsics)")
+    p.add_argument(
+        "--prior",
+        choices=("rgbd", "twoview", "mast3r"),
+        help="where pointmaps come from (default: rgbd for sequences with depth; twoview: RGB "
+        "only, the packaged twoview.yaml)",
+    )
     p.add_argument("--config", metavar="FILE", help="config instead of the packaged eval one")
     p.add_argument("--kernels", choices=("ref", "fast"), default="fast", help="kernel set")
     p.add_argument("--max-frames", type=int, metavar="N", help="at most N frames per sequence")
@@ -263,20 +277,35 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(
             f"{args.root}: no {args.dataset} sequence found (looked for {DATASETS[args.dataset]})"
         )
-    cfg = load_config(args.config or ("eval_calib" if args.calib else "eval_no_calib"),
-                      args.overrides)  # fmt: skip
+    cfg = load_config(*_config(args))
     kernels = load_kernels(args.kernels)
     results = []
     for k, seq in enumerate(seqs, 1):
         name = sequence_name(args.root, seq)
         results.append(_one(k, len(seqs), name, seq, cfg, kernels, args))
     rows = results_rows(results)
-    title = f"{args.dataset} ({'calibrated' if args.calib else 'uncalibrated'}), {args.kernels}"
+    mode = "calibrated" if args.calib else "uncalibrated"
+    title = (
+        f"{args.dataset} ({mode}{f', {args.prior} prior' if args.prior else ''}), {args.kernels}"
+    )
     md = results_markdown(rows, title)
     write_atomic(args.out / "results.md", md)
     write_atomic(args.out / "results.csv", results_csv(rows))
     print(md)
     return 0 if any(s is not None for _, s, _ in results) else 1
+
+
+def _config(args: argparse.Namespace) -> tuple[str, list[str]]:
+    """The config to load and its overrides: ``--config``, else the packaged eval config of
+    the prior (module docstring, step 2)."""
+    keys = list(args.overrides)
+    if args.config:
+        return args.config, keys
+    if args.prior == "twoview":
+        return "twoview", [*(["use_calib=true"] if args.calib else []), "single_thread=true", *keys]
+    if args.prior == "mast3r":
+        return ("calib" if args.calib else "base"), ["single_thread=true", *keys]
+    return ("eval_calib" if args.calib else "eval_no_calib"), keys
 
 
 def _one(k: int, n: int, name: str, seq: Path, cfg: Any, kernels: Any, args: Any):
@@ -288,7 +317,7 @@ def _one(k: int, n: int, name: str, seq: Path, cfg: Any, kernels: Any, args: Any
         return name, dict(s, map=_map_or_none(k, n, name, seq, out)), "resumed"
     print(f"[{k}/{n}] {name}: running", file=sys.stderr, flush=True)
     try:
-        s = run_sequence(seq, cfg, kernels, out, args.max_frames)
+        s = run_sequence(seq, cfg, kernels, out, args.max_frames, args.prior)
     except (OSError, ValueError, RuntimeError) as exc:
         msg = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
         print(f"[{k}/{n}] {name}: FAILED, skipped: {msg}", file=sys.stderr)
