@@ -219,6 +219,28 @@ def test_system_waits_for_parallax_then_poses_the_waiting_frames(seq):
     assert cos > np.cos(np.radians(20))
 
 
+def test_waiting_frames_are_listed_in_frame_order(seq):
+    """A camera at rest for the first frames: they wait with frame 0 and are posed when the
+    wait ends, after the frame that ended it; ``frame_poses`` (and so ``trajectory.txt``)
+    still lists every frame in frame order, as TUM tools expect."""
+    import dataclasses
+
+    from mslam.config import load_config
+    from mslam.kernels import load_kernels
+    from mslam.system.frontend import SlamSystem
+
+    order = [0, 0, 0, 1, 2, 3, 4, 5]  # frames 1 and 2 repeat frame 0's image
+    frames = [dataclasses.replace(seq[i], index=k, timestamp=k / 30) for k, i in enumerate(order)]
+    system = SlamSystem(TwoViewPrior(), load_config("twoview"), load_kernels("ref"))
+    statuses = [system.process(f) for f in frames]
+    assert statuses[:3] == ["waiting"] * 3
+    recorded = [p.index for p in system.poses if p.kf >= 0]
+    assert recorded != sorted(recorded)  # the waiting frames were posed after a later one
+    idx, ts, _ = system.frame_poses()
+    assert {0, 1, 2} <= set(idx.tolist())
+    assert np.all(np.diff(idx) > 0) and np.all(np.diff(ts) > 0)
+
+
 def test_cli_runs_an_rgb_image_folder_with_the_twoview_prior(seq, tmp_path, capsys):
     """An image folder has no depth: without --prior it is a one-line error naming twoview;
     with --prior twoview it runs with the packaged twoview config (focal-length guess)."""

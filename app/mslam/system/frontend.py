@@ -356,12 +356,15 @@ class SlamSystem(ParallaxSteps, RotationStart):
 
     # -- results ---------------------------------------------------------------------------
     def frame_poses(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Poses of every frame that has one, with the final keyframe poses.
+        """Poses of every frame that has one, with the final keyframe poses, in frame order
+        (frames that waited for parallax are posed after the frame that ended the wait; TUM
+        tools expect ascending stamps, and paths and turns are measured between neighbours).
 
         Returns:
             indices (M,) int, timestamps (M,), T_WC (M, 8) Sim(3).
         """
         rows = [p for p in self.poses if p.kf >= 0 and p.kf < len(self.keyframes)]
+        rows.sort(key=lambda p: p.index)
         if not rows:
             return np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 8))
         T_kf = self.keyframes.poses()

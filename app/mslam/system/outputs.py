@@ -2,9 +2,9 @@
 
 Files in the output folder, every one written atomically (temporary file, then rename):
 
-* ``trajectory.txt`` — every frame that has a pose (TUM ``timestamp tx ty tz qx qy qz qw``,
-  camera-to-world, Sim(3) scale dropped); tracked frames are composed with their keyframe's
-  *final* pose. Frames seen while tracking was lost have no pose and are not listed (counted
+* ``trajectory.txt`` — every frame that has a pose, in frame order (TUM ``timestamp tx ty tz
+  qx qy qz qw``, camera-to-world, Sim(3) scale dropped); tracked frames are composed with their
+  keyframe's *final* pose. Frames seen while lost have no pose and are not listed (counted
   in the summary as ``lost_frames``). Upstream writes keyframes only (users asked for all
   frames, docs/upstream.md §14).
 * ``keyframes.txt`` — the keyframes, same format (upstream's ``<seq>.txt``); their images in
