@@ -56,6 +56,7 @@ def test_a_run_is_evaluated_on_the_frames_with_ground_truth(folder: Path, tmp_pa
     s = json.loads((out / "summary.json").read_text())
     assert s["frames_with_pose"] == FRAMES
     assert s["ate"]["matched"] == FRAMES - len(MISSING) and s["ate_rmse"] is not None
+    assert "ate_by_map" not in s  # one map: the ATE above is the map's
     assert s["baseline"]["ate"]["matched"] <= FRAMES - len(MISSING)
     traj = str(out / "trajectory.txt")
     assert main(["eval", str(folder), traj]) == 0

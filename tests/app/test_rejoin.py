@@ -71,12 +71,19 @@ def test_the_retraced_frames_land_in_the_first_maps_frame(rejoined) -> None:
     back = idx >= s["maps"][2]["first_frame"]
     assert back.sum() == len(src.sequence) - s["maps"][2]["first_frame"]  # every one posed
     assert np.max(err[back]) < REJOINED_FRAME_M, err[back]
+    # The summary's ATE per segment: the first map and the one continuing it, aligned on their
+    # own, leave the detour's map (its own frame of reference) out of their error.
+    first, detour = s["ate_by_map"]
+    assert first["maps"] == [0, 2] and detour["maps"] == [1]
+    assert first["frames"] + detour["frames"] == s["frames_with_pose"]
+    assert first["ate_rmse"] < REJOINED_FRAME_M < s["ate_rmse"]
 
 
 def test_without_merging_the_return_stays_lost_until_a_new_map() -> None:
     _, src, s = _run("recovery.merge_maps=0")
     j2 = detour_indices(len(src.sequence))[1]
     assert all(m["merged"] is None for m in s["maps"]), s["maps"]
+    assert [seg["maps"] for seg in s["ate_by_map"]] == [[0], [1], [2]]
     assert not any(r >= j2 for r in s["relocalised_at"])
     assert any(a <= j2 <= b and b - a + 1 >= MAX_LOST for a, b in s["lost_spans"])
 

@@ -199,6 +199,10 @@ def _print_summary(s: dict, out: Path) -> None:
             f"= {s['ate_percent_of_path']:.2f}% of the {s['path_length']:.2f} m path "
             f"(scale {s['ate']['scale']:.3f})"
         )
+    for seg in s.get("ate_by_map") or []:  # several maps: each segment aligned on its own
+        ate = "not computed" if seg["ate_rmse"] is None else f"{seg['ate_rmse']:.4f} m"
+        maps = ("maps " if len(seg["maps"]) > 1 else "map ") + ", ".join(map(str, seg["maps"]))
+        lines.append(f"  {maps} on their own: ATE {ate} ({seg['frames']} posed frames)")
     if s.get("baseline") and s["baseline"].get("ate_rmse") is not None:
         lines.append(
             f"  RGB-D odometry baseline ATE {s['baseline']['ate_rmse']:.4f} m "

@@ -11,15 +11,14 @@ Files in the output folder, every one written atomically (temporary file, then r
   ``keyframes/<timestamp>.png`` (upstream's ``keyframes/`` folder), at the working resolution.
 * ``baseline_odometry.txt`` — with ``--baseline``: OpenCV's RGB-D odometry, TUM format.
 * ``reconstruction.ply`` — per keyframe, world points ``T_WC · X_canon`` (ray-constrained in
-  calibrated mode), colours from the keyframe image, pixels with average confidence ``C/N``
-  above ``output.C_conf_threshold`` (default 1.5, upstream's ``save_reconstruction``; the
-  priors give pixels without a measurement ``C = 1``, so they are never exported, and their
-  filled-in depth never enters the exported positions, ``Keyframe.X_map``);
-  a keyframe whose depth disagrees with the keyframes it overlaps by more than
-  ``output.scale_tolerance`` (log ratio, default 0.2) is rescaled about its camera
-  (``mslam.system.map_scale``); binary little-endian, x y z float32, red green blue uint8.
-* ``summary.json`` — counts, timings, kernels, prior, path length, ATE (Sim(3), evo's pairs) and
-  rotations (``mslam.rotation_metrics``) against ground truth, trust (``mslam.system.health``).
+  calibrated mode), colours from its image, pixels with average confidence ``C/N`` above
+  ``output.C_conf_threshold`` (default 1.5, upstream's ``save_reconstruction``; pixels without
+  a measurement have ``C = 1``: never exported, nor their filled-in depth, ``Keyframe.X_map``);
+  a keyframe whose depth disagrees with those it overlaps by more than ``output.scale_tolerance``
+  (log ratio, 0.2) is rescaled about its camera (``mslam.system.map_scale``); binary, x y z
+  float32, red green blue uint8.
+* ``summary.json`` — counts, timings, kernels, prior, path length, ATE (Sim(3), evo's pairs; per
+  map segment too, ``Recovery.segment_ates``), rotations and trust (``mslam.system.health``).
 * ``trajectory.png`` — estimate (aligned) and ground truth from the top, and the error over time.
 
 Public names, in reading order:
@@ -111,11 +110,9 @@ def _path_length(P: np.ndarray) -> float:
 
 
 def evaluate_run(system: SlamSystem, sequence: FrameSequence) -> dict[str, Any]:
-    """ATE (Sim(3)) of all frames and of the keyframes against ground truth, path lengths.
-
+    """ATE (Sim(3)) of all frames, of the keyframes and of each map segment; path lengths:
     ``path_length`` is the ground truth's, summed over steps between consecutive frames that
-    both have a pose and ground truth (``FrameSequence.ground_truth``; else the estimate's).
-    """
+    both have a pose and ground truth (``FrameSequence.ground_truth``; else the estimate's)."""
     from mslam import evaluate, rotation_metrics
 
     idx, ts, T = system.frame_poses()
@@ -140,6 +137,8 @@ def evaluate_run(system: SlamSystem, sequence: FrameSequence) -> dict[str, Any]:
         return out
     out["ate"] = res.to_dict()
     out["ate_percent_of_path"] = 100.0 * res.rmse / max(out["path_length"], 1e-12)
+    out["ate_by_map"] = system.recovery.segment_ates(
+        system.poses, len(system.keyframes), (idx, ts, T), (gt_ts, gt))  # fmt: skip
     _, kts, kT = system.keyframe_poses()
     if len(kT) >= 3:
         try:
@@ -202,8 +201,9 @@ def summary_dict(system: SlamSystem, meta: dict[str, Any], ev: dict[str, Any]) -
         out["ate_rmse"] = ev["ate"]["ate_rmse"]
         out["ate_frames"] = ev["ate"]["matched"]
         out["ate_percent_of_path"] = ev["ate_percent_of_path"]
-        if "ate_keyframes" in ev:
-            out["ate_keyframes"] = ev["ate_keyframes"]
+        for key in ("ate_keyframes", "ate_by_map"):  # the latter with several maps only
+            if ev.get(key) is not None:
+                out[key] = ev[key]
     if "evaluation_error" in ev:
         out["evaluation_error"] = ev["evaluation_error"]
     if meta.get("skipped"):

@@ -48,6 +48,7 @@ from typing import Any
 import numpy as np
 
 from mslam.system.state import FramePose, FrameStatus
+from mslam_ref.conventions import FloatArray
 
 __all__ = ["BLANK_CONTRAST_FRAC", "Recovery", "RecoveryConfig", "frame_contrast"]
 
@@ -201,6 +202,46 @@ class Recovery:
     def map_of(self, kf: int) -> int:
         """The map keyframe ``kf`` belongs to."""
         return max(m["map"] for m in self.maps if m["first_keyframe"] <= kf)
+
+    def segment_ates(
+        self,
+        poses: Sequence[FramePose],
+        n_keyframes: int,
+        stamped: tuple[np.ndarray, FloatArray, FloatArray],
+        truth: tuple[FloatArray, FloatArray],
+    ) -> list[dict[str, Any]] | None:
+        """The ATE of each segment's frames on their own (Sim(3), evo's pairs): a map kept
+        apart has its own frame of reference, which one alignment of the whole trajectory
+        mixes in. None for a run with one map.
+
+        Args:
+            poses: the system's per-frame records (``index``, ``kf``).
+            n_keyframes: keyframes in the store.
+            stamped: frame indices (M,), timestamps (M,) and poses (M, 8) of the posed frames.
+            truth: ground-truth timestamps (G,) and poses (G, 8).
+
+        Returns:
+            per segment: ``segment``, ``maps`` (its maps), ``frames`` (posed) and ``ate_rmse``
+            (metres; None when it cannot be computed, e.g. fewer than 3 frames).
+        """
+        if len(self.maps) < 2:
+            return None
+        from mslam import evaluate
+
+        idx, ts, T = stamped
+        kf_of = {int(p.index): int(p.kf) for p in poses if 0 <= p.kf < n_keyframes}
+        seg = np.array([self.segment_of(self.map_of(kf_of[int(i)])) for i in idx], np.int64)
+        out = []
+        for s in sorted(set(seg.tolist())):
+            mine = seg == s
+            maps = [int(m["map"]) for m in self.maps if self.segment_of(int(m["map"])) == s]
+            rec = {"segment": s, "maps": maps, "frames": int(mine.sum()), "ate_rmse": None}
+            try:
+                rec["ate_rmse"] = evaluate.ate(ts[mine], T[mine], *truth, align="sim3").rmse
+            except ValueError:  # too few frames, no spread
+                pass
+            out.append(rec)
+        return out
 
     def report(self, poses: Sequence[FramePose], n_keyframes: int) -> dict[str, Any]:
         """The summary's ``maps`` (each with ``keyframes`` and ``frames_posed`` added) and a
