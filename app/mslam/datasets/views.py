@@ -58,7 +58,7 @@ class SubsampledSequence(FrameSequence):
         _copy_metadata(self, base)
         self._keep = np.arange(0, len(base), self.step)
         self.timestamps = np.asarray(base.timestamps)[self._keep]
-        self.T_WC = None if base.T_WC is None else np.asarray(base.T_WC)[self._keep]
+        self.T_WC = _rows(base.T_WC, self._keep)
         self.T_WC_partial = _rows(base.T_WC_partial, self._keep)
 
     def _load(self, i: int) -> Frame:
@@ -95,7 +95,7 @@ class TruncatedSequence(FrameSequence):
         self.base = base
         _copy_metadata(self, base)
         self.timestamps = np.asarray(base.timestamps)[:n]
-        self.T_WC = None if base.T_WC is None else np.asarray(base.T_WC)[:n]
+        self.T_WC = _rows(base.T_WC, slice(0, n))
         self.T_WC_partial = _rows(base.T_WC_partial, slice(0, n))
 
     def _load(self, i: int) -> Frame:

@@ -235,12 +235,11 @@ class Recovery:
         for s in sorted(set(seg.tolist())):
             mine = seg == s
             maps = [int(m["map"]) for m in self.maps if self.segment_of(int(m["map"])) == s]
-            rec = {"segment": s, "maps": maps, "frames": int(mine.sum()), "ate_rmse": None}
             try:
-                rec["ate_rmse"] = evaluate.ate(ts[mine], T[mine], *truth, align="sim3").rmse
+                rmse: float | None = evaluate.ate(ts[mine], T[mine], *truth, align="sim3").rmse
             except ValueError:  # too few frames, no spread
-                pass
-            out.append(rec)
+                rmse = None
+            out.append({"segment": s, "maps": maps, "frames": int(mine.sum()), "ate_rmse": rmse})
         return out
 
     def report(self, poses: Sequence[FramePose], n_keyframes: int) -> dict[str, Any]:
