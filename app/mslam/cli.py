@@ -5,6 +5,8 @@ which adds its parser and sets ``func(args) -> int`` as the default handler. Err
 fix (bad paths, corrupt files, inconsistent calibration, a full disk, missing permissions) are
 raised as ``ValueError``, ``OSError`` or ``mslam.commands.UserError`` and printed as one line
 with exit code 2; Ctrl-C is exit code 130; a closed stdout pipe ends quietly (docs/reliability.md).
+A warning (a skipped frame, a library's notice) is one line, ``mslam COMMAND: warning: ...``,
+without the source line Python's default format adds.
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ import argparse
 import importlib
 import os
 import sys
+import warnings
 
 # One BLAS thread before NumPy loads: the small dense factorisations here (BA reduced camera
 # system, backend) are several times slower with two threads on a busy 2-core machine.
@@ -48,6 +51,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     if getattr(args, "func", None) is None:
         parser.print_help()
         return 0
+    previous = warnings.formatwarning
+    warnings.formatwarning = lambda message, *_a, **_k: (
+        f"mslam {args.command}: warning: {_one_line(Exception(str(message)))}\n"
+    )
     try:
         rc = int(args.func(args) or 0)
         sys.stdout.flush()  # a closed pipe (``| head -1``) shows here, not at exit
@@ -61,6 +68,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"mslam {args.command}: interrupted", file=sys.stderr)
         return 130
+    finally:
+        warnings.formatwarning = previous
 
 
 def _one_line(exc: BaseException) -> str:

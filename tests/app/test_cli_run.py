@@ -227,3 +227,19 @@ def test_rgbd_source_defaults_to_the_rgbd_config(tmp_path, fast64, config, mode)
     s = json.loads((out / "summary.json").read_text(), parse_constant=_reject_nan)
     assert s["prior"] == "rgbd"
     assert s["config"]["tracking"]["filtering_mode"] == mode
+
+
+def test_a_single_image_runs_and_says_nothing_was_posed(tmp_path, recwarn):
+    import cv2
+
+    d = tmp_path / "one"
+    d.mkdir()
+    rng = np.random.default_rng(0)
+    cv2.imwrite(str(d / "000.png"), (rng.random((48, 64, 3)) * 255).astype(np.uint8))
+    out = tmp_path / "out"
+    rc = main(["run", str(d), "--prior", "twoview", "--out", str(out), "--kernels", "ref",
+               "--quiet"])  # fmt: skip
+    assert rc == 0 and all((out / n).exists() for n in OUTPUTS)
+    s = json.loads((out / "summary.json").read_text(), parse_constant=_reject_nan)
+    assert s["frames"] == 1 and not s["plausible"] and s["warnings"]
+    assert not [w for w in recwarn if "legend" in str(w.message)]  # an empty plot, no notices

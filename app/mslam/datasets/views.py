@@ -67,17 +67,23 @@ class SubsampledSequence(FrameSequence):
 
 class ResizedSequence(FrameSequence):
     """Frames of ``base`` shrunk to ``(width, height)``: colour with INTER_AREA, depth with
-    nearest neighbour (no mixing across depth edges), intrinsics rescaled (pixel centres)."""
+    nearest neighbour (no mixing across depth edges), intrinsics rescaled (pixel centres).
+    A frame whose size is not ``src_size`` (the first frame's) raises ``ValueError``: stretched
+    to the working size it would pass for a view through another lens."""
 
     def __init__(self, base: FrameSequence, width: int, height: int, src_size: tuple[int, int]):
         self.base = base
         _copy_metadata(self, base)
         self.width, self.height = int(width), int(height)
+        self.src_size = (int(src_size[0]), int(src_size[1]))
         self.timestamps, self.T_WC = base.timestamps, base.T_WC
         self.K = None if base.K is None else scale_intrinsics(base.K, src_size, (width, height))
 
     def _load(self, i: int) -> Frame:
         f = self.base[i]
+        W, H = self.src_size
+        if f.shape != (H, W):
+            raise ValueError(f"image size {f.shape[1]}x{f.shape[0]} differs from frame 0's {W}x{H}")
         size = (self.width, self.height)
         rgb = cv2.resize(f.rgb, size, interpolation=cv2.INTER_AREA)
         depth: FloatArray | None = None

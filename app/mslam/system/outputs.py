@@ -229,9 +229,8 @@ def plot_trajectory(
 
     Top view (the plane of the two largest principal directions of the ground truth, else of
     the estimate): ground truth, the Sim(3)-aligned estimate, keyframes, loop-closure edges
-    (retrieval and relocalisation edges between keyframes), start and end markers, the
-    ground truth of frames seen while lost, and the ``--baseline`` odometry (aligned the same
-    way) when it ran. Error panel: per-frame error with lost spans shaded.
+    (retrieval and relocalisation edges), start and end markers, the ground truth of frames
+    seen while lost, the ``--baseline`` odometry when it ran. Error panel: lost spans shaded.
     """
     import matplotlib
 
@@ -290,8 +289,9 @@ def plot_trajectory(
     ax.set_ylabel(f"second principal direction [{unit}]")
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_title(f"{title or 'trajectory'}: top view")
-    ax.legend(loc="best", fontsize=7)
     ax.grid(alpha=0.3)
+    if ax.get_legend_handles_labels()[0]:  # nothing to name when no frame has a pose
+        ax.legend(loc="best", fontsize=7)
     fig.tight_layout()
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=100)
