@@ -181,6 +181,7 @@ def test_unreadable_frames_are_skipped_and_counted(tmp_path, monkeypatch, fast64
     s = json.loads((out / "summary.json").read_text(), parse_constant=_reject_nan)
     assert s["skipped_frames"] == 2 and s["frames"] == 10
     assert [k["frame"] for k in s["skipped"]] == [3, 7]
+    assert "2 unreadable frame(s) skipped (the first: frame 3)" in s["warnings"]
 
 
 def test_config_inherit_and_overrides(tmp_path):

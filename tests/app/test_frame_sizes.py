@@ -73,3 +73,5 @@ def test_a_frame_of_another_size_is_skipped_with_a_one_line_warning(tmp_path, ca
     assert warnings.formatwarning is before  # the CLI's format does not outlive the command
     s = json.loads((out / "summary.json").read_text())
     assert s["skipped_frames"] == 1 and [k["frame"] for k in s["skipped"]] == [ODD]
+    assert any(f"frame {ODD}" in w and "skipped" in w for w in s["warnings"])
+    assert not s["plausible"]  # a frame without a pose is said, not hidden

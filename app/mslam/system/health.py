@@ -11,13 +11,14 @@ in ``summary.json`` and on the console:
   without parallax, at their keyframe's centre; all of a pure pan's frames);
 * ``warnings``: one sentence per reason to distrust the run, and ``plausible`` (no warning).
 
-A run is flagged when fewer than :data:`MIN_POSED_FRACTION` of its frames have a pose, and when
+A run is flagged when fewer than :data:`MIN_POSED_FRACTION` of its frames have a pose, when
 the prior is metric (depth-based: ``rgbd``, ``synthetic``) but the aligned Sim(3) scale is
-outside ``[1 / MAX_SCALE_FACTOR, MAX_SCALE_FACTOR]``.
+outside ``[1 / MAX_SCALE_FACTOR, MAX_SCALE_FACTOR]``, and when ``--skip-bad-frames`` skipped
+frames (:func:`skip_warnings`: they are in no count and have no pose).
 
 Public names, in reading order:
     MIN_POSED_FRACTION, MAX_SCALE_FACTOR, METRIC_PRIORS, lost_spans, relocalised_at,
-    health_report
+    health_report, skip_warnings
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ __all__ = [
     "health_report",
     "lost_spans",
     "relocalised_at",
+    "skip_warnings",
 ]
 
 #: Below this fraction of frames with a pose a run is flagged as implausible.
@@ -101,3 +103,12 @@ def health_report(
         "warnings": warnings,
         "plausible": not warnings,
     }
+
+
+def skip_warnings(meta: dict[str, Any]) -> list[str]:
+    """The warning for the frames ``--skip-bad-frames`` skipped (``meta["skipped"]``: dicts
+    with ``frame`` and ``reason``), or none."""
+    skipped = meta.get("skipped") or []
+    if not skipped:
+        return []
+    return [f"{len(skipped)} unreadable frame(s) skipped (the first: frame {skipped[0]['frame']})"]

@@ -122,8 +122,7 @@ def evaluate_run(system: SlamSystem, sequence: FrameSequence) -> dict[str, Any]:
         out["path_length"] = out["path_length_est"]
         return out
     gt_idx, gt_ts, gt = truth
-    # Ground-truth path over consecutive frames that both have a pose (a relocation jump
-    # between lost frames does not count as path).
+    # Ground truth over consecutive frames that both have a pose (a relocation jump is no path).
     has = np.zeros(len(sequence), bool)
     has[idx[idx < len(has)]] = True
     both = has[gt_idx[:-1]] & has[gt_idx[1:]] & (np.diff(gt_idx) == 1)
@@ -188,13 +187,14 @@ def summary_dict(system: SlamSystem, meta: dict[str, Any], ev: dict[str, Any]) -
         "rotation": ev.get("rotation"),
     }
     from mslam.system.divergence import divergence_report
-    from mslam.system.health import health_report
+    from mslam.system.health import health_report, skip_warnings
 
     out.update(
         health_report(system.poses, frames, out["frames_with_pose"], out["prior"], ev.get("ate"))
     )
     maps = system.recovery.report(system.poses, len(system.keyframes))  # mslam.system.recovery
-    out["maps"], warnings = maps["maps"], [*out["warnings"], *maps["warnings"]]
+    out["maps"] = maps["maps"]
+    warnings = [*out["warnings"], *maps["warnings"], *skip_warnings(meta)]
     out.update(divergence_report(system.divergence, graph_checks, T_WC, warnings, idx_posed, maps))
     if "ate" in ev:
         out["ate"] = ev["ate"]
