@@ -50,6 +50,7 @@ def test_map_against_rgbd_folder_and_cloud(capsys, scene) -> None:
         m = res["map"]
         assert m["accuracy"] < MAP_PLY_ATOL and m["completion"] < MAP_PLY_ATOL
         assert m["far"] == 0.0 and m["n_map"] == m["n_truth"]
+        assert "note" not in err  # positions and orientations agree on the alignment
     code, out, err = _run(capsys, [*base, "--truth-rgbd", seq, "--map-poses"])
     assert code == 0, err
     res = json.loads(out)  # an exact Sim(3) copy: positions and orientations agree
@@ -81,3 +82,31 @@ def test_map_options_bad_input(capsys, scene, tmp_path) -> None:
         main(["eval", str(seq), str(est), "--map", str(ply), "--truth-cloud", str(ply),
               "--truth-rgbd", str(seq)])  # fmt: skip
     assert exc.value.code == 2 and "not allowed with" in capsys.readouterr().err
+
+
+def test_a_rotation_the_path_leaves_free_is_noted(capsys, tmp_path) -> None:
+    # Cameras on a gentle arc whose map and orientations are turned 5° (their positions are
+    # not): the position fit cannot see the turn, so the metrics under it measure the turn; the
+    # command says so on stderr (one line, JSON untouched) unless the map is registered.
+    n = 20
+    xi = np.zeros((n, 7))
+    xi[:, 0] = np.linspace(0, 1, n)
+    xi[:, 1] = 0.1 * np.sin(np.linspace(0, np.pi, n))
+    gt = sim3.exp(xi)
+    turn = sim3.exp(np.array([0, 0, 0, np.radians(5.0), 0, 0, 0]))
+    est = sim3.mul(turn[None], gt)
+    est[:, :3] = gt[:, :3]
+    rng = np.random.default_rng(0)
+    truth = rng.uniform([-0.5, -1.0, 1.0], [1.5, 1.0, 2.0], (2000, 3))
+    stamps = np.arange(n) / 30.0
+    io.write_tum(tmp_path / "gt.txt", stamps, gt)
+    io.write_tum(tmp_path / "est.txt", stamps, est)
+    io.write_ply(tmp_path / "map.ply", sim3.act(turn, truth), np.zeros((len(truth), 3), np.uint8))
+    io.write_ply(tmp_path / "truth.ply", truth, np.zeros((len(truth), 3), np.uint8))
+    base = ["eval", tmp_path / "gt.txt", tmp_path / "est.txt", "--map", tmp_path / "map.ply",
+            "--truth-cloud", tmp_path / "truth.ply"]  # fmt: skip
+    code, out, err = _run(capsys, base)
+    assert code == 0 and json.loads(out)["map_alignment"]["rotation_vs_orientations_deg"] > 4.9
+    assert len(err.strip().splitlines()) == 1 and "note:" in err and "5.0°" in err
+    code, out, err = _run(capsys, [*base, "--map-icp"])
+    assert code == 0 and err == ""
