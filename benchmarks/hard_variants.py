@@ -287,15 +287,19 @@ def _walker(im: np.ndarray, k: int) -> np.ndarray:
     return out
 
 
+def maps_text(summary: dict) -> str:
+    """A run's maps for a table: their number, and how many were merged (``2 (1 merged)``)."""
+    merged = sum(m.get("merged") is not None for m in summary["maps"])
+    return f"{len(summary['maps'])}" + (f" ({merged} merged)" if merged else "")
+
+
 def table_row(run: Path) -> str:
     """One Markdown row of a run's ``summary.json``."""
     s = read_summary(run)
-    merged = sum(m.get("merged") is not None for m in s["maps"])
-    maps = f"{len(s['maps'])}" + (f" ({merged} merged)" if merged else "")
     return (
         f"| {run.name} | {s['frames']} | {s['posed_pct']:.1f} | {s['ate_cm']} | "
         f"{s['keyframes']} | "
-        f"{s['frames_per_second']:.2f} | {s['plausible']} | {maps} | "
+        f"{s['frames_per_second']:.2f} | {s['plausible']} | {maps_text(s)} | "
         f"{'; '.join(s['warnings']) or '-'} |"
     )
 

@@ -9,13 +9,13 @@ trajectory's checksum (a change of code that should not move any trajectory keep
 The clip's own runs and the RGB-D default run also get the dense-map metrics of ``mslam eval
 --map --truth-rgbd`` (chamfer under the trajectory's Sim(3) and after ``--map-icp``).
 
-Frames per second are measured ``--jobs`` at a time and are lower than a run alone (about 3.5
-against 4.2 on the clip with two jobs on 2 cores).
+Frames per second are measured ``--jobs`` at a time and are lower than a run alone (the clip:
+2.9 with two jobs on 2 cores, 4.4–4.6 alone in RESULTS.md).
 
 Usage: ``python benchmarks/scoreboard.py [WORK] [--only NAME ...] [--long] [--jobs 2]
 [--no-write]``; writes the section ``scoreboard`` of RESULTS.md unless ``--no-write`` or
 ``--only``. ``--long`` adds the 895- and 648-frame replays (``loop3``, ``mixed``). About 25 min
-for the default set with two jobs on 2 cores.
+for the default set with two jobs on 2 cores (2026-11-27).
 """
 
 from __future__ import annotations
@@ -98,18 +98,15 @@ def map_chamfers(run: Path, clip: Path) -> str:
 def row(name: str, run: Path, chamfer: str) -> list[object]:
     """One table row from a run's outputs (a failed run: its error's first line)."""
     if not (run / "summary.json").exists():
-        err = (run.parent / f"{run.name}.err").read_text() if run.parent.exists() else ""
-        return [name, "–", "–", "–", "–", "–", "failed", "–", "–", err.strip()[:80], "–"]
-    s = json.loads((run / "summary.json").read_text())
-    ate = s.get("ate_rmse")
+        err_file = run.parent / f"{run.name}.err"
+        err = err_file.read_text().strip() if err_file.exists() else "no summary.json"
+        return [name, "–", "–", "–", "–", "–", "failed", "–", "–", err[:80], "–"]
+    s = video_variants.read_summary(run)
     md5 = hashlib.md5((run / "trajectory.txt").read_bytes()).hexdigest()[:8]
-    merged = sum(m.get("merged") is not None for m in s["maps"])
-    maps = f"{len(s['maps'])}" + (f" ({merged} merged)" if merged else "")
     warnings = "; ".join(w[:70] for w in s["warnings"]) or "–"
-    return [name, s["frames"], f"{100 * s['frames_posed_fraction']:.1f}",
-            "–" if ate is None else f"{100 * ate:.2f}", s["keyframes"],
-            f"{s['frames_per_second']:.2f}", s["plausible"], maps, chamfer, warnings,
-            f"`{md5}`"]  # fmt: skip
+    return [name, s["frames"], f"{s['posed_pct']:.1f}", s["ate_cm"], s["keyframes"],
+            f"{s['frames_per_second']:.2f}", s["plausible"], hard_variants.maps_text(s),
+            chamfer, warnings, f"`{md5}`"]  # fmt: skip
 
 
 def main(argv: list[str] | None = None) -> int:

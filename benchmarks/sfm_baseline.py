@@ -17,7 +17,8 @@ Two questions about the dense-map figures of a short RGB-D clip (docs/evaluation
 
 Usage: ``python benchmarks/sfm_baseline.py [--clip FOLDER] [--step 2] [--work DIR]
 [--trajectory NAME=FILE ...]``; writes the section ``sfm-baseline`` of RESULTS.md unless
-``--no-write``. SfM of 75 frames at 640x480 takes about 40 s per camera model on 2 cores.
+``--no-write``. SfM of 75 frames at 640x480 takes about 40 s per camera model on 2 cores
+(80 s beside two mslam runs; RESULTS.md, section ``sfm-baseline``).
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ from _results import git_rev, table, write_section
 
 from mslam.datasets import load_sequence
 from mslam.evaluate import associate, ate
+from mslam.formats import read_tum
 from mslam.map_metrics import evaluate_map, truth_from_rgbd, voxel_downsample
 from mslam.rotation_metrics import rotation_report
 from mslam_ref import so3
@@ -132,12 +134,6 @@ def score(name: str, seq, truth, gt, gt_stamps, st, est, intrinsics: str) -> lis
     return row
 
 
-def read_tum(path: Path) -> tuple[np.ndarray, np.ndarray]:
-    """(n,) stamps and (n, 7) ``[t, q]`` of a TUM trajectory file."""
-    a = np.loadtxt(path, comments="#", ndmin=2)
-    return a[:, 0], a[:, 1:8]
-
-
 def main() -> int:
     ap = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     ap.add_argument("--clip", type=Path, default=CLIP)
@@ -174,7 +170,7 @@ def main() -> int:
                 rows.append(score(name, seq, truth, gt, gt_stamps, st, est, f"f {p[0]:.1f}{k1}"))
     for spec in args.trajectory:
         name, _, path = spec.partition("=")
-        st, est = read_tum(Path(path))
+        st, est = read_tum(path)
         rows.append(score(name, seq, truth, gt, gt_stamps, st, est, "(the run's)"))
     body = (
         f"`python benchmarks/sfm_baseline.py --step {args.step} --seeds "

@@ -53,7 +53,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 0
     previous = warnings.formatwarning
     warnings.formatwarning = lambda message, *_a, **_k: (
-        f"mslam {args.command}: warning: {_one_line(Exception(str(message)))}\n"
+        f"mslam {args.command}: warning: {' '.join(str(message).split())}\n"
     )
     try:
         rc = int(args.func(args) or 0)

@@ -104,6 +104,12 @@ def register(subparsers: Any) -> None:
 #: Beyond it the numbers are not a camera path, and squared errors would overflow float64.
 MAX_ABS_COORDINATE = 1e9
 
+#: Above this angle (degrees) between the trajectory's Sim(3) rotation and the one the cameras'
+#: orientations imply, ``mslam eval --map`` notes on stderr that the map metrics measure the
+#: alignment (docs/evaluation.md §4.1: 7.5–12° on the 7-Scenes clip's nearly straight path,
+#: where even the true depth at the estimated poses scores a chamfer of 10–15 cm).
+FREE_ROTATION_NOTE_DEG = 3.0
+
 
 def _read(path: Path) -> tuple[Any, Any]:
     import numpy as np
@@ -166,13 +172,6 @@ def run(args: argparse.Namespace) -> int:
         _note_free_rotation(out["map_alignment"])
     print_json(out)
     return 0
-
-
-#: Above this angle (degrees) between the trajectory's Sim(3) rotation and the one the cameras'
-#: orientations imply, ``mslam eval --map`` notes on stderr that the map metrics measure the
-#: alignment (docs/evaluation.md §4.1: 7.5–12° on the 7-Scenes clip's nearly straight path,
-#: where even the true depth at the estimated poses scores a chamfer of 10–15 cm).
-FREE_ROTATION_NOTE_DEG = 3.0
 
 
 def _note_free_rotation(info: dict[str, Any]) -> None:

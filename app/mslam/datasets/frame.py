@@ -10,7 +10,7 @@ Pose choice: ``T_WC`` is stored as a Sim(3) 8-vector ``[tx, ty, tz, qx, qy, qz, 
 the poses the system estimates. ``sim3.to_matrix`` gives the 4x4 matrix.
 
 Public names, in reading order:
-    Frame, FrameSequence
+    Frame, FrameSequence, check_frame_size
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ import numpy as np
 
 from mslam_ref.conventions import FloatArray
 
-__all__ = ["Frame", "FrameSequence"]
+__all__ = ["Frame", "FrameSequence", "check_frame_size"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -138,4 +138,14 @@ class FrameSequence:
             f"{type(self).__name__}(name={self.name!r}, frames={len(self)}, "
             f"calibrated={self.K is not None}, depth={self.has_depth}, "
             f"gt={self.T_WC is not None})"
+        )
+
+
+def check_frame_size(shape: tuple[int, int], first: tuple[int, int]) -> None:
+    """Raise ``ValueError`` when an image of ``shape`` (H, W) is not the size of frame 0,
+    ``first`` (H, W): a sequence's images share one size (one camera), and an image of
+    another size shrunk to the working size would pass for a view through another lens."""
+    if tuple(shape) != tuple(first):
+        raise ValueError(
+            f"image size {shape[1]}x{shape[0]} differs from frame 0's {first[1]}x{first[0]}"
         )

@@ -18,7 +18,7 @@ import dataclasses
 import cv2
 import numpy as np
 
-from mslam.datasets.frame import Frame, FrameSequence
+from mslam.datasets.frame import Frame, FrameSequence, check_frame_size
 from mslam.datasets.images import division_maps
 from mslam_ref.conventions import FloatArray
 from mslam_ref.pointmap import scale_intrinsics
@@ -68,8 +68,8 @@ class SubsampledSequence(FrameSequence):
 class ResizedSequence(FrameSequence):
     """Frames of ``base`` shrunk to ``(width, height)``: colour with INTER_AREA, depth with
     nearest neighbour (no mixing across depth edges), intrinsics rescaled (pixel centres).
-    A frame whose size is not ``src_size`` (the first frame's) raises ``ValueError``: stretched
-    to the working size it would pass for a view through another lens."""
+    A frame whose size is not ``src_size`` (the first frame's) raises ``ValueError``
+    (``mslam.datasets.frame.check_frame_size``)."""
 
     def __init__(self, base: FrameSequence, width: int, height: int, src_size: tuple[int, int]):
         self.base = base
@@ -81,9 +81,7 @@ class ResizedSequence(FrameSequence):
 
     def _load(self, i: int) -> Frame:
         f = self.base[i]
-        W, H = self.src_size
-        if f.shape != (H, W):
-            raise ValueError(f"image size {f.shape[1]}x{f.shape[0]} differs from frame 0's {W}x{H}")
+        check_frame_size(f.shape, (self.src_size[1], self.src_size[0]))
         size = (self.width, self.height)
         rgb = cv2.resize(f.rgb, size, interpolation=cv2.INTER_AREA)
         depth: FloatArray | None = None

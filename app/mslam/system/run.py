@@ -19,7 +19,7 @@ from typing import Any, Protocol
 import cv2
 
 from mslam.config import SlamConfig
-from mslam.datasets.frame import Frame
+from mslam.datasets.frame import Frame, check_frame_size
 from mslam.kernels import KernelSet
 from mslam.system.frontend import SlamSystem
 from mslam.system.sources import Source, self_calibrate
@@ -96,10 +96,8 @@ def run_slam(
                     break
                 try:
                     frame = frames.get(i)
-                    if shape is None:
-                        shape = frame.shape
-                    elif frame.shape != shape:
-                        raise ValueError(f"size {frame.shape} differs from frame 0's {shape}")
+                    shape = shape or frame.shape
+                    check_frame_size(frame.shape, shape)
                 except (OSError, ValueError, cv2.error) as exc:
                     if not skip_bad_frames:
                         raise ValueError(
