@@ -12,7 +12,11 @@ Paths (``--path``): the clip's own positions, with its orientations turned by
 
 * ``wobble``: a hand-held wobble, yaw ±7° and pitch ±4° at 0.9 and 1.4 Hz, roll ±2°;
 * ``sweep``: a slow yaw sweep of ±14° over the clip with a pitch of ±3°;
-* ``still``: nothing (the clip's own motion through the cloud: the renderer's own error).
+* ``still``: nothing (the clip's own motion through the cloud: the renderer's own error);
+* ``weave``: the clip's orientations, its positions moved off its nearly straight line
+  (``WEAVE_CM``: one period across the path's second axis, one and a half along its third),
+  so that the positions fix every axis of a trajectory's Sim(3) alignment (the clip's own
+  spread is 27 / 7.4 / 1.0 cm; docs/evaluation.md §4.1).
 
 ``--fov`` sets the output's horizontal field of view (the depth camera sees 57°; wider views
 show the border of what the clip saw, filled from its edge), ``--step`` plays every n-th pose
@@ -22,6 +26,9 @@ same warp at every ``--fov``) is seen at ``x_d = x_u (1 + k1 |x_u|²)``; ``k1 < 
 ``> 0`` pincushion, black where the pinhole view has no content unless ``--fill`` renders a
 pinhole view large enough for every output pixel (as a real barrel lens sees more of the
 scene), ``calib.yaml`` still the pinhole's (``mslam.priors.twoview_lens`` finds the lens).
+``--depth`` also writes each view's depth (the z-buffer's nearest surface, 0 in holes;
+``depth/``, ``depth.txt``, 5000 units per metre as TUM), for RGB-D runs and for
+``mslam eval --map --truth-rgbd OUT``.
 ``--shutter R`` reads the rows out one after another, as a rolling shutter does: row ``y`` is
 seen at the pose a fraction ``R · y / H`` of the way to the next played pose (``BANDS`` bands of
 rows; the last frame all at once); the ground truth is the middle row's pose. Writes a
@@ -29,7 +36,7 @@ TUM-layout folder (``rgb/``, ``rgb.txt``, ``groundtruth.txt``, ``calib.yaml`` of
 camera) for ``mslam run DIR --prior twoview``::
 
     python benchmarks/novel_views.py OUT --path wobble [--fov 50] [--step 1] [--size 320x240]
-        [--k1 0 [--fill]] [--shutter 0]
+        [--k1 0 [--fill]] [--shutter 0] [--depth]
 """
 
 from __future__ import annotations
@@ -55,7 +62,11 @@ STRIDE = 3
 SRC_W, SRC_H = 320, 240
 #: Samples within this relative depth of a pixel's nearest one are averaged into it.
 Z_TOL = 0.02
-PATHS = ("wobble", "sweep", "still")
+PATHS = ("wobble", "sweep", "still", "weave")
+#: Amplitudes [cm] of the ``weave`` path's offsets along the clip path's second and third axes.
+WEAVE_CM = (15.0, 10.0)
+#: Depth units per metre of ``--depth`` (TUM's).
+DEPTH_SCALE = 5000.0
 #: Bands of rows rendered at their own pose (``--shutter``).
 BANDS = 8
 #: Largest |k1| (beyond it a barrel lens folds the corners of a 4:3 frame back).
@@ -95,6 +106,32 @@ def turn(path: str, n: int, step: int) -> np.ndarray:
     else:
         ang = np.zeros((n, 3))
     return Rotation.from_rotvec(np.radians(ang)).as_matrix()
+
+
+def shift(path: str, centres: np.ndarray) -> np.ndarray:
+    """(n, 3) camera centres of ``path``: the clip's ``centres`` (n, 3), for ``weave`` moved
+    off their principal axis (module docstring)."""
+    if path != "weave":
+        return centres
+    mean = centres.mean(0)
+    _, _, Vt = np.linalg.svd(centres - mean, full_matrices=False)
+    s = np.linspace(0.0, 1.0, len(centres))[:, None]
+    a2, a3 = (a / 100.0 for a in WEAVE_CM)
+    return centres + a2 * np.sin(2 * np.pi * s) * Vt[1] + a3 * np.sin(3 * np.pi * s) * Vt[2]
+
+
+def render_depth(X_w, T_WC: np.ndarray, K: np.ndarray, W: int, H: int) -> np.ndarray:
+    """(H, W) depth [m] of the cloud's nearest surface from ``T_WC`` (4, 4), 0 where no point
+    falls (drawn at the output size)."""
+    T_CW = np.linalg.inv(T_WC)
+    X = X_w @ T_CW[:3, :3].T + T_CW[:3, 3]
+    X = X[X[:, 2] > 0.05]
+    u = np.round(K[0, 0] * X[:, 0] / X[:, 2] + K[0, 2]).astype(np.int64)
+    v = np.round(K[1, 1] * X[:, 1] / X[:, 2] + K[1, 2]).astype(np.int64)
+    inside = (u >= 0) & (u < W) & (v >= 0) & (v < H)
+    zbuf = np.full(W * H, np.inf)
+    np.minimum.at(zbuf, v[inside] * W + u[inside], X[inside, 2])
+    return np.where(np.isfinite(zbuf), zbuf, 0.0).reshape(H, W)
 
 
 def render(X_w, rgb, T_WC: np.ndarray, K: np.ndarray, W: int, H: int) -> np.ndarray:
@@ -171,6 +208,7 @@ def write_video(
     k1: float = 0.0,
     fill: bool = False,
     shutter: float = 0.0,
+    depth: bool = False,
 ) -> None:
     """Write the folder of the module docstring."""
     W, H = size
@@ -182,11 +220,16 @@ def write_video(
     seq = load_sequence(str(clip))
     X_w, rgb = room_cloud(seq)
     poses = [sim3.to_matrix(np.asarray(seq.T_WC[i])) for i in range(0, len(seq), step)]
+    centres = shift(path, np.array([T[:3, 3] for T in poses]))
+    for T, c in zip(poses, centres, strict=True):
+        T[:3, 3] = c
     R_add = turn(path, len(poses), step)
     f = (W / 2) / np.tan(np.radians(fov_deg) / 2)
     K = np.array([[f, 0, (W - 1) / 2], [0, f, (H - 1) / 2], [0, 0, 1.0]])
     (out / "rgb").mkdir(parents=True, exist_ok=True)
-    lines, gt = [], []
+    if depth:
+        (out / "depth").mkdir(exist_ok=True)
+    lines, gt, dlines = [], [], []
     T_all = []
     for T, R in zip(poses, R_add, strict=True):
         T_all.append(T.copy())
@@ -201,10 +244,17 @@ def write_video(
         cv2.imwrite(str(out / "rgb" / f"{k:06d}.png"), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
         ts = f"{k * step / 30:.6f}"
         lines.append(f"{ts} rgb/{k:06d}.png")
+        if depth:
+            z = render_depth(X_w, T, K, W, H)
+            raw = np.clip(np.round(z * DEPTH_SCALE), 0, 65535).astype(np.uint16)
+            cv2.imwrite(str(out / "depth" / f"{k:06d}.png"), raw)
+            dlines.append(f"{ts} depth/{k:06d}.png")
         q = Rotation.from_matrix(T[:3, :3]).as_quat()
         gt.append(ts + " " + " ".join(f"{x:.9f}" for x in (*T[:3, 3], *q)))
     (out / "rgb.txt").write_text("\n".join(lines) + "\n")
     (out / "groundtruth.txt").write_text("\n".join(gt) + "\n")
+    if depth:
+        (out / "depth.txt").write_text("\n".join(dlines) + "\n")
     c = f"[{f:.4f}, {f:.4f}, {(W - 1) / 2}, {(H - 1) / 2}]"
     (out / "calib.yaml").write_text(f"width: {W}\nheight: {H}\ncalibration: {c}\n")
 
@@ -219,6 +269,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--k1", type=float, default=0.0, help="radial lens of the output (docstring)")
     ap.add_argument("--fill", action="store_true", help="no black corners (docstring)")
     ap.add_argument("--shutter", type=float, default=0.0, help="rolling-shutter readout, 0-1")
+    ap.add_argument("--depth", action="store_true", help="also write depth (docstring)")
     add_data_argument(ap)
     args = ap.parse_args(argv)
     clip = seven_scenes(args.data)
@@ -236,13 +287,13 @@ def main(argv: list[str] | None = None) -> int:
         or args.step < 1
         or abs(args.k1) > K1_MAX
         or not 0 <= args.shutter <= 1
+        or (args.depth and (args.k1 or args.shutter))
     ):
-        print(f"--fov: 10-120 degrees; --step: at least 1; --k1: within ±{K1_MAX}; --shutter: 0-1",
-              file=sys.stderr)  # fmt: skip
+        print(f"--fov: 10-120 degrees; --step: at least 1; --k1: within ±{K1_MAX}; --shutter: 0-1;"
+              " --depth: a pinhole view only (no --k1, --shutter)", file=sys.stderr)  # fmt: skip
         return 2
-    write_video(
-        args.out, clip, args.path, args.fov, args.step, size, args.k1, args.fill, args.shutter
-    )
+    opts = (args.k1, args.fill, args.shutter, args.depth)
+    write_video(args.out, clip, args.path, args.fov, args.step, size, *opts)
     print(args.out)
     return 0
 
