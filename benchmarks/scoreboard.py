@@ -7,15 +7,19 @@ paths, ``--jobs`` runs at a time, and tabulates each run's ``summary.json``: fra
 share, ATE, keyframes, frames per second, the verdict (``plausible``) and its warnings, and the
 trajectory's checksum (a change of code that should not move any trajectory keeps them all).
 The clip's own runs and the RGB-D default run also get the dense-map metrics of ``mslam eval
---map --truth-rgbd`` (chamfer under the trajectory's Sim(3) and after ``--map-icp``).
+--map --truth-rgbd`` (chamfer under the trajectory's Sim(3) and after ``--map-icp``). So do the
+clip re-rendered with exact depth (``novel_views.py --depth``, 320x240, 55°) along its own path
+(``rendered still``) and along one that weaves off it (``rendered weave``), each RGB only
+(uncalibrated and calibrated) and RGB-D: there the truth is exact, so their chamfers track the
+map rather than the ground truth's own error.
 
 Frames per second are measured ``--jobs`` at a time and are lower than a run alone (the clip:
 2.9 with two jobs on 2 cores, 4.4–4.6 alone in RESULTS.md).
 
 Usage: ``python benchmarks/scoreboard.py [WORK] [--only NAME ...] [--long] [--jobs 2]
 [--no-write]``; writes the section ``scoreboard`` of RESULTS.md unless ``--no-write`` or
-``--only``. ``--long`` adds the 895- and 648-frame replays (``loop3``, ``mixed``). About 25 min
-for the default set with two jobs on 2 cores (2026-11-27).
+``--only``. ``--long`` adds the 895- and 648-frame replays (``loop3``, ``mixed``). About 35 min
+for the default set with two jobs on 2 cores, the renderings included (2026-11-27).
 """
 
 from __future__ import annotations
@@ -29,6 +33,7 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import hard_variants
+import novel_views
 import video_variants
 from _results import git_rev, table, write_section
 
@@ -42,14 +47,21 @@ LONG = ["loop3", "mixed"]
 #: Built-in synthetic paths (name, source).
 SYNTHETIC = ["loop", "detour", "rotation", "forward:120:160x120", "jump"]
 
+#: Paths of the clip re-rendered with depth (``novel_views.py``), and their lens and size.
+RENDERED = ["still", "weave"]
+RENDER_FOV, RENDER_SIZE = 55.0, (320, 240)
+
 #: Columns of the RESULTS table.
 HEADER = ["input", "frames", "posed %", "ATE [cm]", "keyframes", "frames/s", "plausible",
           "maps", "map chamfer: traj. / ICP [cm]", "warnings", "trajectory"]  # fmt: skip
 
 
-def inputs(work: Path, clip: Path, long: bool) -> dict[str, list[str]]:
-    """Every run of the scoreboard: name -> ``mslam run`` arguments (source first); writes
-    the variants' folders under ``work / "inputs"``."""
+def inputs(
+    work: Path, clip: Path, long: bool, only: list[str] | None = None
+) -> tuple[dict[str, list[str]], dict[str, list[str]]]:
+    """Every run of the scoreboard, RGB only and RGB-D: name -> ``mslam run`` arguments
+    (source first); writes the variants' folders under ``work / "inputs"`` (the renderings
+    only when ``only`` is None or names one of their runs)."""
     out = work / "inputs"
     runs: dict[str, list[str]] = {
         "clip": [str(clip)],
@@ -65,7 +77,33 @@ def inputs(work: Path, clip: Path, long: bool) -> dict[str, list[str]]:
         runs[name] = [str(hard_variants.write_variant(clip, out, name))]
     for name in SYNTHETIC:
         runs[f"synthetic:{name}"] = [f"synthetic:{name}"]
-    return runs
+    rgbd = {"clip, RGB-D default": [str(clip)]}
+    for path in RENDERED:
+        name = f"rendered {path}"
+        if only is not None and not any(n.startswith(name) for n in only):
+            continue
+        folder = rendered(out, clip, path)
+        runs[name] = [str(folder)]
+        runs[f"{name}, calibrated"] = [str(folder), "--calib", str(folder / "calib.yaml")]
+        rgbd[f"{name}, RGB-D default"] = [str(folder)]
+    return runs, rgbd
+
+
+def rendered(out: Path, clip: Path, path: str) -> Path:
+    """The clip re-rendered along ``path`` with depth into ``out / f"rendered_{path}"``
+    (written once: about 3 minutes each)."""
+    folder = out / f"rendered_{path}"
+    if not (folder / "depth.txt").exists():
+        novel_views.write_video(folder, clip, path, RENDER_FOV, 1, RENDER_SIZE, depth=True)
+    return folder
+
+
+def truth_folder(name: str, argv: list[str], clip: Path) -> Path | None:
+    """The RGB-D folder a run's map is scored against: the clip for the clip's own runs, the
+    rendering for the rendered ones, else None."""
+    if name.startswith("clip"):
+        return clip
+    return Path(argv[0]) if name.startswith("rendered") else None
 
 
 def run_one(work: Path, name: str, argv: list[str], prior: str | None = "twoview") -> Path:
@@ -81,12 +119,13 @@ def run_one(work: Path, name: str, argv: list[str], prior: str | None = "twoview
     return out
 
 
-def map_chamfers(run: Path, clip: Path) -> str:
-    """``traj. / ICP`` chamfer (cm) of a run on the clip itself, by ``mslam eval``."""
+def map_chamfers(run: Path, truth: Path) -> str:
+    """``traj. / ICP`` chamfer (cm) of a run against the RGB-D folder ``truth``, by ``mslam
+    eval``."""
     got = []
     for extra in ([], ["--map-icp"]):
-        cmd = ["mslam", "eval", str(clip / "groundtruth.txt"), str(run / "trajectory.txt"),
-               "--map", str(run / "reconstruction.ply"), "--truth-rgbd", str(clip), *extra]  # fmt: skip
+        cmd = ["mslam", "eval", str(truth / "groundtruth.txt"), str(run / "trajectory.txt"),
+               "--map", str(run / "reconstruction.ply"), "--truth-rgbd", str(truth), *extra]  # fmt: skip
         done = subprocess.run(cmd, capture_output=True, text=True)
         if done.returncode != 0:
             return "–"
@@ -121,32 +160,35 @@ def main(argv: list[str] | None = None) -> int:
     if not args.clip.is_dir():
         print(f"{args.clip}: clip folder not found", file=sys.stderr)
         return 2
-    runs = inputs(args.work, args.clip, args.long)
+    runs, rgbd = inputs(args.work, args.clip, args.long, args.only)
     if args.only is not None:
-        unknown = sorted(set(args.only) - set(runs))
+        unknown = sorted(set(args.only) - set(runs) - set(rgbd))
         if unknown:
-            print(
-                f"--only: unknown {', '.join(unknown)}; known: {', '.join(runs)}", file=sys.stderr
-            )
+            known = ", ".join([*runs, *rgbd])
+            print(f"--only: unknown {', '.join(unknown)}; known: {known}", file=sys.stderr)
             return 2
         runs = {k: v for k, v in runs.items() if k in args.only}
+        rgbd = {k: v for k, v in rgbd.items() if k in args.only or k.startswith("clip")}
     with ThreadPoolExecutor(args.jobs) as pool:
         done = dict(zip(runs, pool.map(lambda kv: run_one(args.work, *kv), runs.items())))
-        rgbd = pool.submit(run_one, args.work, "clip, RGB-D default", [str(args.clip)], None)
-        done["clip, RGB-D default"] = rgbd.result()
+        done.update(zip(rgbd, pool.map(lambda kv: run_one(args.work, *kv, None), rgbd.items())))
     rows = []
+    argvs = {**runs, **rgbd}
     for name, run in done.items():
-        on_clip = name.startswith("clip") and (run / "summary.json").exists()
-        rows.append(row(name, run, map_chamfers(run, args.clip) if on_clip else "–"))
+        truth = truth_folder(name, argvs[name], args.clip)
+        ok = truth is not None and (run / "summary.json").exists()
+        rows.append(row(name, run, map_chamfers(run, truth) if ok and truth else "–"))
         print(" | ".join(map(str, rows[-1])), flush=True)
     body = (
         f"`python benchmarks/scoreboard.py{' --long' if args.long else ''}` at {git_rev()}: "
         f"`mslam run SOURCE --prior twoview` (RGB only, uncalibrated unless named so, default "
         f"settings, 160x120) on the clip {args.clip.name}, its variants "
-        "(`video_variants.py`, `hard_variants.py`) and the synthetic paths; the last row is the "
-        f"clip's RGB-D default run. {args.jobs} runs at a time (frames per second lower than "
-        "alone). Map chamfer for the runs on the clip itself (`mslam eval --map --truth-rgbd`, "
-        "under the trajectory's Sim(3) and after `--map-icp`).\n\n" + table(HEADER, rows)
+        "(`video_variants.py`, `hard_variants.py`), the synthetic paths and the clip re-rendered "
+        "with exact depth (`novel_views.py --depth`, 320x240, 55°); the last rows are RGB-D "
+        f"default runs. {args.jobs} runs at a time (frames per second lower than alone). Map "
+        "chamfer for the runs on the clip and on its renderings (`mslam eval --map "
+        "--truth-rgbd`, under the trajectory's Sim(3) and after `--map-icp`).\n\n"
+        + table(HEADER, rows)
     )
     if not args.no_write and args.only is None:
         write_section("scoreboard", "Scoreboard: every input this repository makes", body)
