@@ -120,17 +120,29 @@ def shift(path: str, centres: np.ndarray) -> np.ndarray:
     return centres + a2 * np.sin(2 * np.pi * s) * Vt[1] + a3 * np.sin(3 * np.pi * s) * Vt[2]
 
 
+def zbuffer(X_w, T_WC: np.ndarray, K: np.ndarray, W: int, H: int):
+    """The cloud's points (N, 3) seen from ``T_WC`` (4, 4) through ``K`` on a (W, H) grid:
+    ``(sel, idx, z, zbuf)``, the indices into ``X_w`` of the points in front (beyond 5 cm) that
+    land inside, their pixels ``v · W + u`` (nearest), depths, and the nearest depth per pixel
+    (W · H,), ``inf`` where none lands."""
+    T_CW = np.linalg.inv(T_WC)
+    X = X_w @ T_CW[:3, :3].T + T_CW[:3, 3]
+    sel = np.flatnonzero(X[:, 2] > 0.05)
+    X = X[sel]
+    z = X[:, 2]
+    u = np.round(K[0, 0] * X[:, 0] / z + K[0, 2]).astype(np.int64)
+    v = np.round(K[1, 1] * X[:, 1] / z + K[1, 2]).astype(np.int64)
+    inside = (u >= 0) & (u < W) & (v >= 0) & (v < H)
+    sel, idx, z = sel[inside], v[inside] * W + u[inside], z[inside]
+    zbuf = np.full(W * H, np.inf)
+    np.minimum.at(zbuf, idx, z)
+    return sel, idx, z, zbuf
+
+
 def render_depth(X_w, T_WC: np.ndarray, K: np.ndarray, W: int, H: int) -> np.ndarray:
     """(H, W) depth [m] of the cloud's nearest surface from ``T_WC`` (4, 4), 0 where no point
     falls (drawn at the output size)."""
-    T_CW = np.linalg.inv(T_WC)
-    X = X_w @ T_CW[:3, :3].T + T_CW[:3, 3]
-    X = X[X[:, 2] > 0.05]
-    u = np.round(K[0, 0] * X[:, 0] / X[:, 2] + K[0, 2]).astype(np.int64)
-    v = np.round(K[1, 1] * X[:, 1] / X[:, 2] + K[1, 2]).astype(np.int64)
-    inside = (u >= 0) & (u < W) & (v >= 0) & (v < H)
-    zbuf = np.full(W * H, np.inf)
-    np.minimum.at(zbuf, v[inside] * W + u[inside], X[inside, 2])
+    zbuf = zbuffer(X_w, T_WC, K, W, H)[3]
     return np.where(np.isfinite(zbuf), zbuf, 0.0).reshape(H, W)
 
 
@@ -140,17 +152,8 @@ def render(X_w, rgb, T_WC: np.ndarray, K: np.ndarray, W: int, H: int) -> np.ndar
     K2 = K.copy()
     K2[:2] *= 2.0
     K2[:2, 2] += 0.5  # pixel centres of the doubled grid
-    T_CW = np.linalg.inv(T_WC)
-    X = X_w @ T_CW[:3, :3].T + T_CW[:3, 3]
-    z = X[:, 2]
-    front = z > 0.05
-    X, z, col = X[front], z[front], rgb[front]
-    u = np.round(K2[0, 0] * X[:, 0] / z + K2[0, 2]).astype(np.int64)
-    v = np.round(K2[1, 1] * X[:, 1] / z + K2[1, 2]).astype(np.int64)
-    inside = (u >= 0) & (u < W2) & (v >= 0) & (v < H2)
-    idx, z, col = v[inside] * W2 + u[inside], z[inside], col[inside]
-    zbuf = np.full(W2 * H2, np.inf)
-    np.minimum.at(zbuf, idx, z)
+    sel, idx, z, zbuf = zbuffer(X_w, T_WC, K2, W2, H2)
+    col = rgb[sel]
     keep = z <= zbuf[idx] * (1 + Z_TOL)
     acc = np.zeros((W2 * H2, 3))
     cnt = np.zeros(W2 * H2)
