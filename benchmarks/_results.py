@@ -19,7 +19,7 @@ RESULTS = Path(__file__).with_name("RESULTS.md")
 
 
 def machine() -> str:
-    """One line describing the machine: CPU model, cores, memory, Python, NumPy, Taichi."""
+    """One line describing the machine: CPU model, cores, memory, Python, NumPy, Taichi, OpenCV."""
     import numpy as np
 
     cpu = platform.processor() or platform.machine()
@@ -40,9 +40,15 @@ def machine() -> str:
         tiv = ".".join(map(str, ti.__version__))
     except Exception:
         tiv = "absent"
+    try:
+        import cv2
+
+        cvv = cv2.__version__
+    except Exception:
+        cvv = "absent"
     return (
         f"{cpu}, {os.cpu_count()} cores, {mem:.0f} GiB, Python {platform.python_version()}, "
-        f"NumPy {np.__version__}, Taichi {tiv}, {date.today().isoformat()}"
+        f"NumPy {np.__version__}, Taichi {tiv}, OpenCV {cvv}, {date.today().isoformat()}"
     )
 
 

@@ -260,3 +260,16 @@ THIRD_VIEW_DIRECTION_DEG = 5.0
 #: synthetic prior and ``recovery.max_lost_frames=4``, measured 2026-11-27 at most 0.062 m
 #: (the first map's own frames 0.023 m; the path spans 2 m).
 REJOINED_FRAME_M = 0.1
+
+#: Focal length of a camera estimated from many views (``mslam.priors.twoview_selfcal``),
+#: relative error: exact tracks with 0.2 px noise within 1 %; ``synthetic:forward`` at 320x240
+#: (70° camera, 60° guess) 2.9 % long, the 7-Scenes clip re-rendered at 55° 0.5 % short
+#: (measured 2026-11-28).
+SELFCAL_FOCAL_REL = 0.05
+#: Its radial coefficient (half-diagonal units): 0.006 on ``synthetic:forward`` (no lens),
+#: 0.007 on the 55° rendering seen through a lens of -0.022 (measured 2026-11-28).
+SELFCAL_K_ABS = 0.015
+#: Median step of Lucas–Kanade tracks (``mslam.priors.selfcal_tracks``) on a smooth random
+#: texture shifted by a known subpixel amount per frame, pixels (measured 2026-11-28 within
+#: 0.001 px).
+TRACK_SHIFT_PX = 0.05

@@ -33,11 +33,10 @@ For RGB-only input without a network (image folders, videos, the RGB stream of T
    descriptors of the RGB-D prior (``descriptors.patch_descriptors``, ``descriptor_Q``).
 
 Intrinsics: ``K`` when calibrated (``--calib``), else :func:`focal_guess_intrinsics` (60°
-across the long side) times ``focal_scale`` (a run sets it from the video where the video
-determines it, :mod:`twoview_focal`), which the SLAM system never sees: uncalibrated, it only
-uses the pointmaps, as with MASt3R. Uncalibrated, a pair is without parallax when its flow is a
-rotation for *some* focal length (``focal_free_parallax``, :mod:`twoview_homography`). A whole
-run's ATE moves by up to 1 cm under 1-3 % focal changes (docs/priors.md).
+across the long side) times ``focal_scale`` (set from the video where it determines it,
+:mod:`twoview_selfcal`, :mod:`twoview_focal`), which the SLAM system never sees: uncalibrated,
+it only uses the pointmaps, as with MASt3R. Uncalibrated, a pair is without parallax when its
+flow is a rotation for *some* focal length (``focal_free_parallax``, :mod:`twoview_homography`).
 
 ``mono(i)``: no parallax, no honest depth: the latest non-degenerate two-view pointmap of the
 image (as i or j, in its own camera, normalised), else a fronto-parallel plane at distance 1,
@@ -119,9 +118,9 @@ class TwoViewPriorConfig:
         focal_free_parallax: uncalibrated, a pair whose flow is a rotation for *some* focal
             length has no parallax, and its rotation is the homography's at that focal length
             (:mod:`mslam.priors.twoview_homography`).
-        self_calibrate: uncalibrated, a run first estimates the focal length and the lens's
-            radial distortion from the video and uses them where determined
-            (:mod:`mslam.priors.twoview_focal`, :mod:`mslam.priors.twoview_lens`).
+        self_calibrate: uncalibrated, a run first estimates the focal length and the lens
+            from the video where determined: from many views (``camera_from_views``,
+            :mod:`mslam.priors.twoview_selfcal`), else from pairs (:mod:`twoview_focal`).
         guide: sparse-feature seeding of the flow for pairs beyond DIS's range
             (:mod:`mslam.priors.twoview_flow`).
     """
@@ -147,6 +146,7 @@ class TwoViewPriorConfig:
     ambiguity: float = 1.5
     focal_free_parallax: bool = True
     self_calibrate: bool = True
+    camera_from_views: bool = True
 
     def __post_init__(self) -> None:
         positive = ("fb_px", "pose_fb_px", "ransac_px", "max_reproj_px", "angle_sigma_deg",

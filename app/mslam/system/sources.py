@@ -165,17 +165,26 @@ def self_calibrate(source: Source) -> dict[str, object] | None:
     from mslam.datasets.views import DivisionUndistortedSequence
     from mslam.priors.twoview import TwoViewPrior
     from mslam.priors.twoview_focal import estimate_focal
+    from mslam.priors.twoview_geometry import focal_guess_intrinsics
+    from mslam.priors.twoview_selfcal import estimate_camera
 
     prior = source.prior
     if not isinstance(prior, TwoViewPrior) or prior.K is not None or prior.focal_scale != 1.0:
         return None
     if not prior.cfg.self_calibrate:
         return None
+    camera = estimate_camera(source.sequence) if prior.cfg.camera_from_views else None
+    if camera is not None and camera.used:
+        prior.focal_scale = camera.focal_scale
+        if camera.lam:
+            source.sequence = DivisionUndistortedSequence(source.sequence, camera.lam)
+        H, W = _first_readable(source.sequence, source.name).shape
+        return camera.record(float(focal_guess_intrinsics(W, H)[0, 0]))
     estimate = estimate_focal(source.sequence)
     prior.focal_scale = estimate.scale
     if estimate.lens is not None and estimate.lens.lam_in_use:
         source.sequence = DivisionUndistortedSequence(source.sequence, estimate.lens.lam_in_use)
-    return estimate.as_dict()
+    return {**estimate.as_dict(), "many_views": camera and camera.as_dict()}
 
 
 def _first_readable(seq: Any, name: str, tries: int = 10) -> Frame:
