@@ -80,3 +80,16 @@ def test_a_steady_walk_towards_a_wall_with_matching_depths_is_not_flagged() -> N
     assert "scale shrank" in map_spread(normalised, CFG)
     sideways = _poses(np.outer(WALL_FROM - dist, [1.0, 0.0, 0.0]), dist)
     assert "scale shrank" in map_spread(sideways, CFG, np.ones(N_KF))
+
+
+def test_a_pointmap_scale_change_that_leaves_the_scene_distance_is_not_flagged() -> None:
+    # Keyframes at rest whose canonical points come at another scale each time (mono or fused
+    # pointmaps): the Sim(3) scale grows five-fold while s_k · depth_k, the scene's distance in
+    # world units, stays put.
+    scales = np.geomspace(1.0, 5.0, N_KF)
+    T = _poses(np.zeros((N_KF, 3)), scales)
+    factor, share = _window_stats(T)
+    assert factor > CFG.max_scale_drift and share >= CFG.min_drift_trend
+    assert map_spread(T, CFG, 1.0 / scales) is None
+    # The same scales over pointmaps of one scale move the scene: a drift.
+    assert "scale grew" in map_spread(T, CFG, np.ones(N_KF))

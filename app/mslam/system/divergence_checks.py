@@ -8,7 +8,8 @@ summary:
   finite, whose final cost exceeds its first, or that moves a keyframe by more than
   ``max_backend_move`` times the keyframes' median spacing, is undone.
 * :func:`map_spread` watches one map's keyframes for a map that spreads without bound while
-  each step looks plausible (a slow runaway): the keyframes' Sim(3) scale moving steadily one
+  each step looks plausible (a slow runaway): the scene's distance in world units (each
+  keyframe's Sim(3) scale times its canonical points' median distance) moving steadily one
   way over the last ``spread_window`` keyframes (net log change at least ``min_drift_trend``
   of the summed absolute log changes) by a factor beyond ``max_scale_drift``, or by a factor
   beyond ``max_uneven_drift`` however unevenly, once the part that the keyframes' motion along
@@ -175,28 +176,36 @@ def map_spread(
     ``max_spacing_growth``-fold).
 
     ``depth`` (K,): the median distance of each keyframe's canonical points to its camera.
-    With it, the part of the scale change that the camera's motion along its optical axis
+    With it, the watch reads the scene's distance in world units, ``s_k · depth_k``, rather
+    than the scale ``s_k`` alone (a keyframe whose canonical points are at another scale than
+    its predecessor's, as mono or fused pointmaps are, changes ``s_k`` without changing the
+    map), and the part of that change which the camera's motion along its optical axis
     explains (walking towards a wall shrinks a normalised prior's scale) is not drift; without
     it every steady scale change counts."""
     T = np.asarray(T_kf, dtype=np.float64).reshape(-1, 8)
     w = cfg.spread_window
     if len(T) <= w or not np.all(np.isfinite(T)) or not np.all(T[:, 7] > 0):
         return None
-    d = np.diff(np.log(T[-w - 1 :, 7]))
+    log_d = np.log(T[-w - 1 :, 7])  # the scene's distance in world units, up to the depths
+    m = None if depth is None else np.asarray(depth, dtype=np.float64).reshape(-1)[-w - 1 :]
+    if m is not None and not (len(m) == w + 1 and np.all(np.isfinite(m)) and np.all(m > 0)):
+        m = None
+    if m is not None:
+        log_d = log_d + np.log(m)  # s_k · depth_k: a pointmap's own scale change is no drift
+    d = np.diff(log_d)
     trend = abs(float(d.sum())) / max(float(np.abs(d).sum()), 1e-300)  # 1: every step one way
     net = float(d.sum())
-    if depth is not None:
-        m = np.asarray(depth, dtype=np.float64).reshape(-1)[-w - 1 :]
-        if len(m) == w + 1 and np.all(np.isfinite(m)) and np.all(m > 0):
-            # Motion only explains a change the same way as the observed one, and at most all.
-            net -= float(np.clip(_explained_log_change(T[-w - 1 :], m), min(net, 0), max(net, 0)))
+    if m is not None:
+        # Motion only explains a change the same way as the observed one, and at most all.
+        net -= float(np.clip(_explained_log_change(T[-w - 1 :], m), min(net, 0), max(net, 0)))
     drift = float(np.exp(abs(net)))
     steady = trend >= cfg.min_drift_trend
     if drift > cfg.max_scale_drift and (steady or drift > cfg.max_uneven_drift):
         way = "grew" if net > 0 else "shrank"
         return (
-            f"the keyframes' Sim(3) scale {way} by a factor {drift:.3g} over the last {w} "
-            f"keyframes, {'steadily' if steady else 'unevenly'} (net change "
+            f"the keyframes' world scale {way} by a factor {drift:.3g} over the last {w} "
+            f"keyframes (Sim(3) scale times their points' distance, where known), "
+            f"{'steadily' if steady else 'unevenly'} (net change "
             f"{100 * trend:.0f} % of the total change), beyond what their motion towards or "
             "away from the scene explains"
         )
