@@ -74,24 +74,47 @@ print(f"ATE (Sim(3)) {ate.rmse * 100:.1f} cm")
 #
 # Triangulation turns pixels into rays, so the two-view prior needs a focal length even when the
 # system is uncalibrated. It assumes a 60° field of view across the long side unless the video
-# says otherwise: before the first frame, `run_slam` sums the self-calibration cost of up to 32
-# pairs (the two singular values of `K_fᵀ F K_f`, F a pair's fundamental matrix, are equal only
-# at the camera's focal length; `mslam.priors.twoview_focal`, docs/priors.md). The minimum
-# replaces the guess where a bootstrap over the pairs pins it down and it contradicts the guess
-# by more than the estimator's known long bias. The verdict is in the run's metadata
-# (`summary.json`'s `focal_estimate`); the curve shows how sharply the video decides.
+# says otherwise. Before the first frame, `run_slam` first asks many views
+# (`mslam.priors.twoview_selfcal`, docs/priors.md): point tracks through two stretches of the
+# video at 320 px, each stretch reconstructed and bundle-adjusted with one focal length and one
+# radial lens coefficient shared by all its views. Where both stretches are determined and
+# agree, their mean is the camera. The verdict is in the run's metadata (`summary.json`'s
+# `focal_estimate`, its `many_views` record below).
+
+# %%
+focal = meta.get("focal_estimate") or {}
+views = focal.get("many_views") or {}
+print(views.get("reason", "no many-view estimate (calibrated, or frames under 320 px)"))
+for st in views.get("stretches", ()):
+    if st["reconstructed"]:
+        print(
+            f"  frames {st['frames']}: focal x{st['focal_scale']:.3f} the guess, "
+            f"k {st['k']:+.3f}, {st['views']} views, {st['points']} points"
+        )
+
+# %% [markdown]
+# Short stretches are the hard case: on these 75 frames (every second of the clip's 150) each
+# stretch spans 37 frames, and the two disagree, so the run falls back. On all 150 frames the
+# stretches agree (×0.911 and ×0.923 the guess, `k` −0.032 and −0.028; benchmarks/RESULTS.md,
+# "The camera from many views") and the run uses their mean. Without the data folder the
+# rendered sequence is smaller than 320 px and goes straight to pairs.
+#
+# Otherwise the run falls back to pairs: it sums the self-calibration cost of up to 32 pairs
+# (the two singular values of `K_fᵀ F K_f`, F a pair's fundamental matrix, are equal only at the
+# camera's focal length; `mslam.priors.twoview_focal`). The minimum replaces the guess where a
+# bootstrap over the pairs pins it down and it contradicts the guess by more than the
+# estimator's known long bias; the curve shows how sharply the pairs decide.
 
 # %%
 from mslam.priors.twoview_focal import SEARCH, pair_costs
 
-focal = meta.get("focal_estimate")
-print(focal["reason"] if focal else "no estimate")
+print(focal.get("reason", "no estimate"))
 costs, guess = pair_costs(seq)
 total = costs.sum(0)
 plt.figure(figsize=(5, 2.6))
 plt.semilogx(SEARCH * guess, total / total.max())
 plt.axvline(guess, color="0.5", ls=":", label="60° guess")
-if focal and focal["estimate_px"]:
+if focal.get("estimate_px"):
     used = "used" if focal["used"] else "not used"
     plt.axvline(focal["estimate_px"], color="C3", ls="--", label=f"estimate, {used}")
 plt.xlabel("focal length [px]")
@@ -100,15 +123,16 @@ plt.legend(fontsize=8)
 plt.show()
 
 # %% [markdown]
-# The same pairs first ask whether the lens bends straight lines (`mslam.priors.twoview_lens`):
+# The lens: the many-view estimate fits a radial coefficient beside the focal length; the
+# pairs' fallback asks whether the lens bends straight lines (`mslam.priors.twoview_lens`):
 # their flow end points are undistorted by a one-parameter division model for each coefficient
-# `λ`, and only the lens's own `λ` makes a rigid scene's flow exactly epipolar. Where the pinhole
-# explains the flow clearly worse (by 30 % or more, summed over the pairs) the run undistorts its
-# frames before anything else; the 7-Scenes colour camera is within 3 % of a pinhole, and the
-# verdict below keeps it.
+# `λ`, and only the lens's own `λ` makes a rigid scene's flow exactly epipolar. Pairs see only a
+# clear lens (the pinhole 30 % worse or more); the 7-Scenes colour camera's weak barrel lens
+# (COLMAP: `k₁` −0.043) is within 3 % of a pinhole for them, and many views find it. Where a lens
+# is in use, the run undistorts its frames before anything else.
 
 # %%
-print(focal["lens"]["reason"] if focal and focal.get("lens") else "no lens estimate")
+print(focal["lens"]["reason"] if focal.get("lens") else "no lens estimate")
 
 # %% [markdown]
 # ## The scale of each keyframe's pointmap
