@@ -15,7 +15,7 @@ its views, refined as it grows (:mod:`mslam.priors.selfcal_sfm`, :mod:`mslam.pri
 Each stretch is a separate estimate.
 
 It needs frames of at least ``DETAIL_SIDE`` pixels on the long side: from 160x120 tracks the
-estimate on the clip re-rendered at 55° was 9 % short (benchmarks/RESULTS.md, "The camera
+estimate on the clip re-rendered at 55° was 4.9 % short (benchmarks/RESULTS.md, "The camera
 from many views"); smaller videos keep the two-view estimates.
 
 **Used only where the stretches agree.** At least two stretches must reconstruct, each with
