@@ -13,8 +13,8 @@ centre, ``s`` its half diagonal in pixels) is undistorted to ``c + s · x_d / (1
 uncalibrated run can estimate ``λ`` first (``mslam.priors.twoview_lens``).
 
 Public functions, in reading order:
-    resize_img, optimal_intrinsics, undistort_maps, undistort, division_undistort_points,
-    division_maps
+    resize_img, optimal_intrinsics, undistort_maps, undistort, centre_scale,
+    division_undistort_points, division_maps
 """
 
 from __future__ import annotations
@@ -26,6 +26,7 @@ from mslam_ref.conventions import FloatArray, as_float_array
 from mslam_ref.pointmap import check_K
 
 __all__ = [
+    "centre_scale",
     "division_maps",
     "division_undistort_points",
     "optimal_intrinsics",
@@ -153,14 +154,16 @@ def undistort(img: np.ndarray, maps: tuple[np.ndarray, np.ndarray]) -> np.ndarra
     return cv2.remap(img, mx, my, cv2.INTER_LINEAR)
 
 
-def _centre_scale(W: int, H: int) -> tuple[FloatArray, float]:
+def centre_scale(W: int, H: int) -> tuple[FloatArray, float]:
+    """The image's centre ``c`` (2,) and half diagonal ``s`` in pixels: the units of the lens
+    models here (``x = (uv − c) / s``) for a ``W`` x ``H`` image."""
     return np.array([(W - 1) / 2.0, (H - 1) / 2.0]), float(np.hypot(W, H) / 2.0)
 
 
 def division_undistort_points(uv: FloatArray, lam: float, W: int, H: int) -> FloatArray:
     """(N, 2) pixels of a (W, H) image undistorted by the division model ``lam`` (module
     docstring); ``lam = 0`` returns them unchanged."""
-    c, s = _centre_scale(W, H)
+    c, s = centre_scale(W, H)
     x = (np.asarray(uv, np.float64) - c) / s
     return c + s * x / (1.0 + lam * (x * x).sum(-1, keepdims=True))
 
@@ -173,7 +176,7 @@ def division_maps(lam: float, W: int, H: int) -> tuple[np.ndarray, np.ndarray]:
     Returns:
         map_x, map_y: (H, W) float32.
     """
-    c, s = _centre_scale(W, H)
+    c, s = centre_scale(W, H)
     u, v = np.meshgrid(np.arange(W, dtype=np.float64), np.arange(H, dtype=np.float64))
     xu, yu = (u - c[0]) / s, (v - c[1]) / s
     xd, yd = xu.copy(), yu.copy()

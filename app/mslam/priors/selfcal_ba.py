@@ -37,12 +37,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from mslam_ref import so3
+from mslam_ref.ba.robust import RobustKernel, rho_and_weight
 from mslam_ref.conventions import FloatArray, IntArray
 
 __all__ = ["HUBER_PX", "Problem", "Solution", "bundle_adjust", "camera_covariance", "residuals"]
 
 #: Residuals beyond this many pixels are weighted down (Huber).
 HUBER_PX = 1.0
+_HUBER = RobustKernel("huber", HUBER_PX)
 
 
 @dataclass(frozen=True)
@@ -87,11 +89,9 @@ def residuals(p: Problem, x: Solution) -> tuple[FloatArray, FloatArray, FloatArr
 
 
 def _huber(e: FloatArray) -> tuple[float, FloatArray]:
-    """Huber cost and IRLS weights (O,) of residual vectors e (O, 2)."""
-    a = np.linalg.norm(e, axis=1)
-    inside = a <= HUBER_PX
-    cost = np.where(inside, 0.5 * a * a, HUBER_PX * (a - 0.5 * HUBER_PX)).sum()
-    return float(cost), np.where(inside, 1.0, HUBER_PX / np.maximum(a, 1e-12))
+    """Huber cost (``½ Σ ρ``) and IRLS weights (O,) of residual vectors e (O, 2)."""
+    rho, w = rho_and_weight((e * e).sum(1), _HUBER)
+    return 0.5 * float(rho.sum()), w
 
 
 def _jacobians(p: Problem, x: Solution, X_c: FloatArray, x_u: FloatArray):

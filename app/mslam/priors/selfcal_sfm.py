@@ -34,6 +34,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from mslam.datasets.images import centre_scale
 from mslam.priors.selfcal_ba import Problem, Solution, bundle_adjust, camera_covariance, residuals
 from mslam.priors.selfcal_tracks import Tracks
 from mslam_ref.conventions import FloatArray, IntArray
@@ -79,7 +80,7 @@ class _Window:
 
     def __init__(self, tracks: Tracks, views: IntArray, F0: float) -> None:
         W, H = tracks.size
-        self.c, self.s = np.array([(W - 1) / 2, (H - 1) / 2]), 0.5 * np.hypot(W, H)
+        self.c, self.s = centre_scale(W, H)
         pos = np.full(int(tracks.frame.max()) + 1, -1)
         pos[views] = np.arange(len(views))
         keep = pos[tracks.frame] >= 0

@@ -44,8 +44,10 @@ import cv2
 import numpy as np
 
 from mslam.datasets.frame import FrameSequence
+from mslam.datasets.images import centre_scale
 from mslam.priors.selfcal_sfm import Reconstruction, reconstruct
 from mslam.priors.selfcal_tracks import DETAIL_SIDE, detail_frames, track
+from mslam.priors.twoview_geometry import focal_guess_intrinsics
 
 __all__ = [
     "AGREE_F",
@@ -150,7 +152,7 @@ def _stretch(grays: list[np.ndarray] | None, seed: int) -> tuple[Reconstruction 
         return None, 0.0
     cv2.setRNGSeed(seed)  # RANSAC draws from the thread's generator: the same on every run
     H, W = grays[0].shape
-    F0 = (max(W, H) / 2) / np.tan(np.radians(30.0)) / (0.5 * np.hypot(W, H))
+    F0 = float(focal_guess_intrinsics(W, H)[0, 0]) / centre_scale(W, H)[1]
     views = np.unique(np.linspace(0, len(grays) - 1, VIEWS).round().astype(int))
     return reconstruct(track(grays), views, F0), F0
 
