@@ -139,6 +139,10 @@ DEPTH_VS_PLY_MEDIAN_REL = 0.05
 #: COLMAP image poses against keyframes.txt (both written as shortest round-trip floats):
 #: worst measured 4e-16.
 COLMAP_POSE_ATOL = 1e-9
+#: The two-view refinement's batched formulas (``mslam.priors.twoview_lm``) against the one-pose
+#: ones (rotation matrix entries; Sampson distances in pixels): the same maths in another order;
+#: measured 3e-16 and 2e-14.
+TWOVIEW_LM_FORMULA = 1e-9
 #: Focal length estimated from exact synthetic pointmaps (relative); measured 3e-16.
 FOCAL_FROM_POINTMAP_RTOL = 1e-9
 

@@ -237,18 +237,18 @@ def refine_pose(
     B = np.linalg.svd(t0[None, :])[2][1:].T
     residuals = sampson_fn(uv_i, uv_j, K)
 
-    def unpack(p):
-        t = t0 + B @ p[3:]
-        return so3_exp(p[:3]) @ R_ji, t / np.linalg.norm(t)
+    def unpack(P):  # (M, 5) parameter sets -> R (M, 3, 3), t (M, 3)
+        t = t0 + (B[:, 0] * P[:, 3:4] + B[:, 1] * P[:, 4:5])
+        return so3_exp(P[:, :3]) @ R_ji, t / np.linalg.norm(t, axis=1)[:, None]
 
     def fun(P):  # (M, 5) parameter sets -> (M, N) residuals
-        Rs, ts = zip(*(unpack(p) for p in P))
-        return residuals(np.stack(Rs), np.stack(ts))
+        return residuals(*unpack(P))
 
     p = huber_lm(fun, np.zeros(5), huber_px)
     if p is None:
         return R_ji, t0
-    return unpack(p)
+    R, t = unpack(p[None])
+    return R[0], t[0]
 
 
 def triangulate_midpoint(
