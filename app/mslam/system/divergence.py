@@ -161,8 +161,10 @@ class DivergenceMonitor:
         if solves:
             out.append(f"{len(solves)} global solve(s) undone (first: {solves[0]['reason']})")
         out += [
-            f"the map runs away (at frame {e['frame']}): {e['reason']}; positions "
-            "and scale after it are not trustworthy"
+            f"the map runs away (at frame {e['frame']}): {e['reason']}; the map's scale "
+            "after it is not trustworthy, nor are positions that depend on it (a scene seen "
+            "from much nearer or farther, turning towards other surfaces or moving sideways "
+            "towards them, looks the same)"
             for e in spreads
         ]
         return out
