@@ -1,6 +1,6 @@
-"""The two-view pose refinement's small solver (``mslam.priors.twoview_lm``): its batched
-evaluations give the numbers of one evaluation per pose, bit for bit, so a faster path never
-moves a trajectory."""
+"""The two-view pose refinement's small solver (``mslam.priors.twoview_lm``) and the
+cheirality counts of its hypotheses: their batched evaluations give the numbers of one
+evaluation at a time, bit for bit, so a faster path never moves a trajectory."""
 
 from __future__ import annotations
 
@@ -9,7 +9,12 @@ import pytest
 from tolerances import TWOVIEW_LM_FORMULA
 
 import mslam.priors.twoview_lm as lm
-from mslam.priors.twoview_geometry import refine_pose, sampson_residuals
+from mslam.priors.twoview_geometry import (
+    front_counts,
+    refine_pose,
+    sampson_residuals,
+    triangulate_midpoint,
+)
 from mslam_ref import so3
 
 K = np.array([[138.6, 0.0, 79.5], [0.0, 138.6, 59.5], [0.0, 0.0, 1.0]])
@@ -65,3 +70,22 @@ def test_both_evaluation_paths_give_the_same_refined_pose(monkeypatch) -> None:
     assert np.array_equal(batched[0], per_pose[0]) and np.array_equal(batched[1], per_pose[1])
     angle = np.degrees(np.arccos(np.clip((np.trace(batched[0].T @ R_true) - 1) / 2, -1, 1)))
     assert angle < 0.2  # 0.3 px noise on 600 points: the refined rotation within 0.2°
+
+
+def test_front_counts_are_the_two_signs_triangulated_one_by_one() -> None:
+    """One pass gives the cheirality counts of ``t`` and ``-t`` that two triangulations give."""
+    rng = np.random.default_rng(5)
+    for trial in range(20):
+        n = 300
+        X = np.column_stack([rng.uniform(-1, 1, n), rng.uniform(-1, 1, n), rng.uniform(-2, 4, n)])
+        R = lm.so3_exp(rng.normal(size=3) * 0.1)
+        t = rng.normal(size=3) * 10.0 ** rng.uniform(-4, 0)
+        x_i, x_j = X @ K.T, (X @ R.T + t) @ K.T
+        uv_i = x_i[:, :2] / x_i[:, 2:] + rng.normal(size=(n, 2)) * 0.5
+        uv_j = x_j[:, :2] / x_j[:, 2:] + rng.normal(size=(n, 2)) * 0.5
+        if trial == 0:
+            uv_j = uv_i.copy()  # parallel rays: nothing triangulates
+        n_pos = int(triangulate_midpoint(uv_i, uv_j, K, R, t)[2].sum())
+        n_neg = int(triangulate_midpoint(uv_i, uv_j, K, R, -t)[2].sum())
+        assert front_counts(uv_i, uv_j, K, R, t) == (n_pos, n_neg)
+        assert trial == 0 or n_pos + n_neg > 0

@@ -20,7 +20,7 @@ The maths of :mod:`mslam.priors.twoview`, image pair (i, j) with intrinsics K:
 Public names, in reading order:
     focal_guess_intrinsics, forward_backward_error, symmetric_flow, flow_consistency,
     essential_pose, sampson_residuals, sampson_distances, refine_pose, homography_parallax,
-    triangulate_midpoint, reprojection_error
+    triangulate_midpoint, front_counts, reprojection_error
 """
 
 from __future__ import annotations
@@ -44,6 +44,7 @@ __all__ = [
     "symmetric_flow",
     "flow_consistency",
     "triangulate_midpoint",
+    "front_counts",
 ]
 
 #: Horizontal field of view assumed when no calibration is given (degrees). 60° is the middle
@@ -265,6 +266,27 @@ def triangulate_midpoint(
         angle: (...,) triangulation angle ∠(a, b) in radians;
         ok: (...,) bool, both depths > 0 and the rays not parallel (angle > 1e-6).
     """
+    a, b, c, lam, mu, angle, valid = _midpoint_terms(uv_i, uv_j, K, R_ji, t_ji)
+    X = 0.5 * (lam[..., None] * a + c + mu[..., None] * b)
+    ok = valid & (lam > 0) & (mu > 0)
+    return np.where(ok[..., None], X, 0.0), angle, ok
+
+
+def front_counts(
+    uv_i: FloatArray, uv_j: FloatArray, K: FloatArray, R_ji: FloatArray, t_ji: FloatArray
+) -> tuple[int, int]:
+    """How many correspondences triangulate in front of both cameras with ``t_ji`` and with
+    ``-t_ji``: ``(n, n_flipped)``, the ``ok`` counts of :func:`triangulate_midpoint` for both
+    signs from one pass (with ``-t`` both ray parameters change sign exactly, so a point in
+    front for one sign is behind for the other)."""
+    _, _, _, lam, mu, _, valid = _midpoint_terms(uv_i, uv_j, K, R_ji, t_ji)
+    return int(np.sum(valid & (lam > 0) & (mu > 0))), int(np.sum(valid & (lam < 0) & (mu < 0)))
+
+
+def _midpoint_terms(uv_i, uv_j, K, R_ji, t_ji):
+    """The rays ``a`` (camera i) and ``b`` (camera j, rotated into i), the centre ``c`` of j
+    in i, the ray parameters ``lam``, ``mu`` of the closest points ``lam a`` and ``c + mu b``,
+    the angle between the rays, and ``valid``: rays not parallel (angle > 1e-6)."""
     Kinv = np.linalg.inv(K)
     ones = np.ones((*uv_i.shape[:-1], 1))
     a = np.concatenate([uv_i, ones], -1) @ Kinv.T
@@ -276,11 +298,10 @@ def triangulate_midpoint(
     safe = np.where(det > 1e-12 * aa * bb, det, 1.0)
     lam = (ac * bb - ab * bc) / safe
     mu = (ab * ac - aa * bc) / safe
-    X = 0.5 * (lam[..., None] * a + c + mu[..., None] * b)
     cosang = ab / np.sqrt(aa * bb)
     angle = np.arccos(np.clip(cosang, -1.0, 1.0))
-    ok = (det > 1e-12 * aa * bb) & (lam > 0) & (mu > 0) & (angle > 1e-6)
-    return np.where(ok[..., None], X, 0.0), angle, ok
+    valid = (det > 1e-12 * aa * bb) & (angle > 1e-6)
+    return a, b, c, lam, mu, angle, valid
 
 
 def reprojection_error(

@@ -35,7 +35,12 @@ import cv2
 import numpy as np
 
 from mslam.priors.cache import ByteLRU
-from mslam.priors.twoview_geometry import refine_pose, sampson_residuals, triangulate_midpoint
+from mslam.priors.twoview_geometry import (
+    front_counts,
+    refine_pose,
+    sampson_residuals,
+    triangulate_midpoint,
+)
 from mslam_ref.conventions import FloatArray
 
 __all__ = ["ReferenceDepths", "choose_pose", "depth_disagreement", "pose_candidates"]
@@ -52,8 +57,7 @@ def _huber_cost(r: FloatArray, delta: float) -> float:
 
 def _front_sign(uv_i, uv_j, K, R, t) -> FloatArray:
     """``t`` or ``-t``, whichever puts more triangulated points in front of both cameras."""
-    n_pos = triangulate_midpoint(uv_i, uv_j, K, R, t)[2].sum()
-    n_neg = triangulate_midpoint(uv_i, uv_j, K, R, -t)[2].sum()
+    n_pos, n_neg = front_counts(uv_i, uv_j, K, R, t)
     return t if n_pos >= n_neg else -t
 
 
