@@ -69,10 +69,11 @@ def hat(v: FloatArray) -> FloatArray:
     """
     v = as_float_array(v, "v", 3)
     x, y, z = v[..., 0], v[..., 1], v[..., 2]
-    o = np.zeros_like(x)
-    return np.stack(
-        [np.stack([o, -z, y], -1), np.stack([z, o, -x], -1), np.stack([-y, x, o], -1)], -2
-    )
+    V = np.zeros((*v.shape[:-1], 3, 3))
+    V[..., 0, 1], V[..., 0, 2] = -z, y
+    V[..., 1, 0], V[..., 1, 2] = z, -x
+    V[..., 2, 0], V[..., 2, 1] = -y, x
+    return V
 
 
 def exp(phi: FloatArray) -> FloatArray:

@@ -10,8 +10,9 @@ is tracked (not only the views) so that each step is short.
 The run's frames are small (160x120 by default); a focal length and a weak lens need more
 detail: on the clip re-rendered at 55° and 50° (``benchmarks/novel_views.py``) the estimate
 was 4.9 % short and 2.7 % long from 160x120 tracks, within 1 % from 320x240 ones
-(benchmarks/RESULTS.md, "The camera from many views"). :func:`detail_frames` reads the source's own images and shrinks
-them to ``DETAIL_SIDE`` pixels on the long side (never enlarging).
+(benchmarks/RESULTS.md, "The camera from many views"). :func:`detail_frames` reads the
+source's own images and shrinks them to ``DETAIL_SIDE`` pixels on the long side (never
+enlarging).
 
 Public names, in reading order:
     DETAIL_SIDE, Tracks, detail_frames, track

@@ -283,10 +283,13 @@ def front_counts(
     return int(np.sum(valid & (lam > 0) & (mu > 0))), int(np.sum(valid & (lam < 0) & (mu < 0)))
 
 
-def _midpoint_terms(uv_i, uv_j, K, R_ji, t_ji):
-    """The rays ``a`` (camera i) and ``b`` (camera j, rotated into i), the centre ``c`` of j
-    in i, the ray parameters ``lam``, ``mu`` of the closest points ``lam a`` and ``c + mu b``,
-    the angle between the rays, and ``valid``: rays not parallel (angle > 1e-6)."""
+def _midpoint_terms(
+    uv_i: FloatArray, uv_j: FloatArray, K: FloatArray, R_ji: FloatArray, t_ji: FloatArray
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, np.ndarray]:
+    """The rays ``a`` and ``b`` (..., 3) of camera i and of camera j rotated into i, the
+    centre ``c`` (3,) of j in i, the ray parameters ``lam``, ``mu`` (...,) of the closest
+    points ``lam a`` and ``c + mu b``, the angle (...,) between the rays, and ``valid`` (...,):
+    rays not parallel (angle > 1e-6)."""
     Kinv = np.linalg.inv(K)
     ones = np.ones((*uv_i.shape[:-1], 1))
     a = np.concatenate([uv_i, ones], -1) @ Kinv.T

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from mslam_ref import so3
 from mslam_ref.conventions import FloatArray
 
 __all__ = ["ONE_PRODUCT_MAX_N", "huber_cost_sum", "huber_lm", "sampson_fn", "so3_exp"]
@@ -31,14 +32,6 @@ __all__ = ["ONE_PRODUCT_MAX_N", "huber_cost_sum", "huber_lm", "sampson_fn", "so3
 ONE_PRODUCT_MAX_N = 2000
 
 
-def _skew(w: FloatArray) -> FloatArray:
-    """Cross-product matrices ``[w]x`` (..., 3, 3) of vectors (..., 3)."""
-    Wx = np.zeros((*w.shape[:-1], 3, 3))
-    Wx[..., 0, 1], Wx[..., 0, 2], Wx[..., 1, 2] = -w[..., 2], w[..., 1], -w[..., 0]
-    Wx[..., 1, 0], Wx[..., 2, 0], Wx[..., 2, 1] = w[..., 2], -w[..., 1], w[..., 0]
-    return Wx
-
-
 def so3_exp(w: FloatArray) -> FloatArray:
     """Rodrigues: rotation vectors (..., 3) to matrices (..., 3, 3).
 
@@ -46,7 +39,7 @@ def so3_exp(w: FloatArray) -> FloatArray:
     rows); the first-order form ``I + [w]x`` below 1e-12 rad."""
     w = np.asarray(w, np.float64)
     th = np.linalg.norm(w, axis=-1)[..., None, None]
-    Wx = _skew(w)
+    Wx = so3.hat(w)
     small = th < 1e-12
     th = np.where(small, 1.0, th)
     full = np.eye(3) + np.sin(th) / th * Wx + (1 - np.cos(th)) / th**2 * (Wx @ Wx)
@@ -54,15 +47,15 @@ def so3_exp(w: FloatArray) -> FloatArray:
 
 
 def sampson_fn(uv_i: FloatArray, uv_j: FloatArray, K: FloatArray):
-    """:func:`mslam.priors.twoview_geometry.sampson_residuals` of M poses at once, the homogeneous pixels prepared once:
-    ``f(R (M, 3, 3), t (M, 3)) -> (M, N)``."""
+    """:func:`mslam.priors.twoview_geometry.sampson_residuals` of M poses at once, the
+    homogeneous pixels prepared once: ``f(R (M, 3, 3), t (M, 3)) -> (M, N)``."""
     Kinv = np.linalg.inv(K)
     n = len(uv_i)
     xi = np.column_stack([np.asarray(uv_i, np.float64).reshape(n, 2), np.ones(n)])
     xj = np.column_stack([np.asarray(uv_j, np.float64).reshape(n, 2), np.ones(n)])
 
     def f(R: FloatArray, t: FloatArray) -> FloatArray:
-        F = Kinv.T @ _skew(t) @ R @ Kinv
+        F = Kinv.T @ so3.hat(t) @ R @ Kinv
         M = len(F)
         if n <= ONE_PRODUCT_MAX_N:  # all M poses in one BLAS product: (N, 3) @ (3, 3M)
             Fxi = (xi @ F.transpose(2, 0, 1).reshape(3, 3 * M)).reshape(n, M, 3)
