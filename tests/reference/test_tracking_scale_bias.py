@@ -57,7 +57,8 @@ def test_noise_in_the_keyframe_distances_leaves_the_scale_unbiased() -> None:
 @pytest.mark.xfail(
     strict=True,
     reason="the distance residual's least squares dilutes the scale by noise in the frame's "
-    "distances (s ~ 1 / (1 + sigma^2)); the two-view path shrinks its map under image noise",
+    "distances (s ~ 1 / (1 + sigma^2)): tracked frames sit too close under image noise "
+    "(docs/priors.md)",
 )
 def test_noise_in_the_frame_distances_leaves_the_scale_unbiased() -> None:
     assert abs(_solved_log_scale("frame")) < TRACKING_SCALE_BIAS_LOG
