@@ -31,18 +31,16 @@ Usage: ``python benchmarks/spread_explained.py SOURCE [--set KEY=VALUE ...] [--m
 from __future__ import annotations
 
 import argparse
-import sys
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
 from mslam.config import load_config
+from mslam.datasets.frame import Frame
 from mslam.kernels import load_kernels
-from mslam.system import open_source, run_slam
+from mslam.system import SlamSystem, open_source, run_slam
 from mslam.system.divergence_checks import MIN_DEPTH_FRAC
+from mslam.system.state import FrameStatus
 from mslam_ref import sim3, so3
 
 #: Keyframes per window, as the watch's ``spread_window``.
@@ -83,7 +81,7 @@ def predicted_log_change(T: np.ndarray, X: list[np.ndarray], d: np.ndarray) -> n
     return out
 
 
-def link_consistency(system, j: int) -> float:
+def link_consistency(system: SlamSystem, j: int) -> float:
     """The median log distance ratio (module docstring) of the consecutive edge into keyframe
     ``j``, over the pixels of ``j``; NaN without one."""
     kf, T = system.keyframes, system.keyframes.poses()
@@ -109,7 +107,7 @@ class Watch:
         self.seen = 0
         self.start = 0
 
-    def after_frame(self, i, frame, system, status) -> None:
+    def after_frame(self, i: int, frame: Frame, system: SlamSystem, status: FrameStatus) -> None:
         kf = system.keyframes
         if len(kf) == self.seen:
             return
