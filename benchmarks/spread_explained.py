@@ -39,7 +39,7 @@ from mslam.config import load_config
 from mslam.datasets.frame import Frame
 from mslam.kernels import load_kernels
 from mslam.system import SlamSystem, open_source, run_slam
-from mslam.system.divergence_checks import MIN_DEPTH_FRAC
+from mslam.system.divergence_checks import explained_log_changes
 from mslam.system.state import FrameStatus
 from mslam_ref import sim3, so3
 
@@ -52,16 +52,9 @@ FOV_PERCENTILES = (2.0, 98.0)
 MIN_IN_VIEW = 50
 
 
-def scene_distance(T: np.ndarray, X: list[np.ndarray]) -> np.ndarray:
-    """(K,) ``s_k · median |X_canon_k|`` of poses ``T`` (K, 8) and pointmaps ``X`` (K of (N, 3))."""
-    return np.array([T[k, 7] * np.median(np.linalg.norm(X[k], axis=1)) for k in range(len(T))])
-
-
-def axis_log_change(T: np.ndarray, d: np.ndarray) -> np.ndarray:
-    """(K-1,) log change of ``d`` that motion along the optical axis explains, per link."""
-    z = so3.act(T[:-1, 3:7], np.array([0.0, 0.0, 1.0]))
-    f = np.sum(np.diff(T[:, :3], axis=0) * z, axis=1)
-    return np.log(np.maximum(d[:-1] - f, MIN_DEPTH_FRAC * d[:-1]) / d[:-1])
+def median_distances(X: list[np.ndarray]) -> np.ndarray:
+    """(K,) median distance of each pointmap's points (K of (N, 3)) to its camera."""
+    return np.array([np.median(np.linalg.norm(P, axis=1)) for P in X])
 
 
 def predicted_log_change(T: np.ndarray, X: list[np.ndarray], d: np.ndarray) -> np.ndarray:
@@ -123,9 +116,11 @@ class Watch:
         ks = range(len(kf) - WINDOW - 1, len(kf))
         T = kf.poses()[ks.start :]
         X = [np.asarray(kf[k].state.X_canon, np.float64).reshape(-1, 3) for k in ks]
-        d = scene_distance(T, X)
+        m = median_distances(X)
+        d = T[:, 7] * m  # the scene's distance in world units
         o = float(np.log(d[-1] / d[0]))
-        ax = float(np.clip(axis_log_change(T, d).sum(), min(o, 0), max(o, 0)))  # as map_spread
+        explained = float(np.sum(explained_log_changes(T, m)))
+        ax = float(np.clip(explained, min(o, 0), max(o, 0)))  # as map_spread
         p = o - float(predicted_log_change(T, X, d).sum())
         net = float(np.sum(self.links[-WINDOW:]))
         self.rows.append(

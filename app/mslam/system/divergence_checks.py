@@ -22,7 +22,7 @@ summary:
   through :func:`mslam.system.turns.turn_warnings`), for the summary's ``warnings``.
 
 Public names, in reading order:
-    DivergenceConfig, guard_backend, map_spread, trajectory_warnings
+    DivergenceConfig, guard_backend, explained_log_changes, map_spread, trajectory_warnings
 """
 
 from __future__ import annotations
@@ -36,7 +36,13 @@ from mslam.system.turns import TurnConfig, turn_warnings
 from mslam_ref import so3
 from mslam_ref.conventions import FloatArray
 
-__all__ = ["DivergenceConfig", "guard_backend", "map_spread", "trajectory_warnings"]
+__all__ = [
+    "DivergenceConfig",
+    "explained_log_changes",
+    "guard_backend",
+    "map_spread",
+    "trajectory_warnings",
+]
 
 #: In the final trajectory's first quarter, a step below this share of the quarter's 90th
 #: percentile step is a camera at rest, not the motion a jump is measured against (a clip with
@@ -147,14 +153,14 @@ def guard_backend(
     return None
 
 
-def _explained_log_change(T: FloatArray, depth: FloatArray) -> float:
-    """Net log change of the keyframes' Sim(3) scale that their motion explains.
+def explained_log_changes(T: FloatArray, depth: FloatArray) -> FloatArray:
+    """Per link, the log change of the keyframes' Sim(3) scale that their motion explains.
 
     The keyframes' scene distance in world units is ``d_k = s_k · depth_k``; moving by
     ``f_k = (c_{k+1} - c_k) · z_k`` along the optical axis ``z_k`` takes the same scene to
     distance ``d_k - f_k`` (exactly for a wall facing the camera). A prior that normalises
     its pointmaps (``depth_k`` constant) then needs ``s_{k+1} / s_k = (d_k - f_k) / d_k``;
-    the sum of those log ratios is returned.
+    those log ratios are returned, (K-1,).
 
     Args:
         T: (K, 8) keyframe poses in creation order.
@@ -163,7 +169,7 @@ def _explained_log_change(T: FloatArray, depth: FloatArray) -> float:
     z = so3.act(T[:-1, 3:7], np.array([0.0, 0.0, 1.0]))  # (K-1, 3) optical axes in the world
     f = np.sum(np.diff(T[:, :3], axis=0) * z, axis=1)
     d = T[:-1, 7] * depth[:-1]
-    return float(np.sum(np.log(np.maximum(d - f, MIN_DEPTH_FRAC * d) / d)))
+    return np.log(np.maximum(d - f, MIN_DEPTH_FRAC * d) / d)
 
 
 def map_spread(
@@ -197,7 +203,8 @@ def map_spread(
     net = float(d.sum())
     if m is not None:
         # Motion only explains a change the same way as the observed one, and at most all.
-        net -= float(np.clip(_explained_log_change(T[-w - 1 :], m), min(net, 0), max(net, 0)))
+        explained = float(np.sum(explained_log_changes(T[-w - 1 :], m)))
+        net -= float(np.clip(explained, min(net, 0), max(net, 0)))
     drift = float(np.exp(abs(net)))
     steady = trend >= cfg.min_drift_trend
     if drift > cfg.max_scale_drift and (steady or drift > cfg.max_uneven_drift):
