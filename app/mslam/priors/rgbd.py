@@ -347,10 +347,10 @@ class RGBDPrior:
         """Whether :meth:`prefetch` does anything (``cfg.prefetch``)."""
         return self.cfg.prefetch
 
-    def prefetch(self, frame: Frame) -> None:
+    def prefetch(self, frame: Frame, partner: Frame | None = None) -> None:
         """Start ``frame``'s own work (keypoints, descriptors, depth view, ICP target: nothing
-        that depends on a keyframe) on a worker thread; the same functions as on demand, so
-        the same values. They enter the cache when a pair or view of that frame is asked for,
+        that depends on a keyframe, so ``partner`` is not used) on a worker thread; the same
+        functions as on demand, so the same values. They enter the cache when a pair or view of that frame is asked for,
         or at the next :meth:`prefetch` or :meth:`join_prefetch`."""
         self.join_prefetch()
         if not self.cfg.prefetch:

@@ -59,16 +59,16 @@ Public names, in reading order:
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
 
 import numpy as np
 
 from mslam.datasets.frame import Frame
 from mslam.priors.base import PairPrediction
 from mslam.priors.cache import ByteLRU
-from mslam.priors.descriptors import DescriptorConfig, descriptor_Q, patch_descriptors
+from mslam.priors.descriptors import descriptor_Q, patch_descriptors
 from mslam.priors.rgbd import FAILED_Q, fill_depth
-from mslam.priors.twoview_flow import GuideConfig, guided_flow, sift_keypoints
+from mslam.priors.twoview_config import TwoViewPriorConfig
+from mslam.priors.twoview_flow import guided_flow, sift_keypoints
 from mslam.priors.twoview_geometry import (
     essential_pose,
     flow_consistency,
@@ -80,84 +80,11 @@ from mslam.priors.twoview_geometry import (
 )
 from mslam.priors.twoview_homography import homography_fit, homography_rotation
 from mslam.priors.twoview_planar import ReferenceDepths, choose_pose, pose_candidates
+from mslam.priors.twoview_prefetch import FlowPrefetch, pair_keys, pair_work
 from mslam_ref.conventions import FloatArray
 from mslam_ref.pointmap import backproject, scale_intrinsics
 
 __all__ = ["TwoViewPrior", "TwoViewPriorConfig"]
-
-
-@dataclass(frozen=True)
-class TwoViewPriorConfig:
-    """Parameters of the two-view prior (module docstring).
-
-    Attributes:
-        fb_px: forward–backward error (pixels) above which a correspondence is not used.
-        pose_fb_px: stricter forward–backward limit for the correspondences of the pose.
-        max_ransac_points: correspondences (grid subsample) given to the essential matrix.
-        ransac_px: RANSAC epipolar threshold (pixels).
-        min_inliers: fewer RANSAC inliers means a degenerate pair.
-        min_flow_frac: a pair whose share of pixels passing the forward–backward check (fb_px)
-            is lower is degenerate too (DIS breaks down under large motion and still returns
-            a few hundred self-consistent vectors).
-        min_parallax_px: homography parallax (pixels) below which a pair is degenerate. On
-            the 7-Scenes kitchen clip (2026-11-26) the translation direction of pairs with
-            0.5-1 px was off by a median 39° (16° at 1-1.5 px): flow noise, not geometry.
-        max_reproj_px: triangulated pixels reprojecting worse than this are not used.
-        conf_max: ``C - 1`` of a perfect pixel.
-        angle_sigma_deg, reproj_sigma, fb_sigma: scales of ``w_θ`` (degrees), ``w_r``, ``w_fb``
-            (pixels).
-        q_gain, q_contrast: ``Q = 1 + q_gain tanh(contrast / q_contrast)``.
-        desc: patch-descriptor parameters.
-        planar_candidates: also try the homography decompositions as pose hypotheses
-            (:mod:`mslam.priors.twoview_planar`).
-        third_view: resolve hypotheses the pair cannot tell apart with image i's and j's
-            depths from their widest-angle earlier pairs; only with a known focal length (with
-            the guess, two pairs' depths are different projective distortions: synthetic loop,
-            70° lens, guess 60°: ATE 2.1 % of the path without, 3.4 % with it).
-        ambiguity: cost ratio under which hypotheses count as indistinguishable.
-        focal_free_parallax: uncalibrated, a pair whose flow is a rotation for *some* focal
-            length has no parallax, and its rotation is the homography's at that focal length
-            (:mod:`mslam.priors.twoview_homography`).
-        self_calibrate: uncalibrated, a run first estimates the focal length and the lens
-            from the video where determined: from many views (``camera_from_views``,
-            :mod:`mslam.priors.twoview_selfcal`), else from pairs (:mod:`twoview_focal`).
-        guide: sparse-feature seeding of the flow for pairs beyond DIS's range
-            (:mod:`mslam.priors.twoview_flow`).
-    """
-
-    fb_px: float = 1.0
-    pose_fb_px: float = 0.3
-    max_ransac_points: int = 2000
-    ransac_px: float = 1.0
-    min_inliers: int = 200
-    min_flow_frac: float = 0.3
-    min_parallax_px: float = 1.0
-    max_reproj_px: float = 2.0
-    conf_max: float = 20.0
-    angle_sigma_deg: float = 3.0
-    reproj_sigma: float = 1.0
-    fb_sigma: float = 0.5
-    q_gain: float = 6.0
-    q_contrast: float = 0.04
-    desc: DescriptorConfig = field(default_factory=DescriptorConfig)
-    guide: GuideConfig = field(default_factory=GuideConfig)
-    planar_candidates: bool = True
-    third_view: bool = True
-    ambiguity: float = 1.5
-    focal_free_parallax: bool = True
-    self_calibrate: bool = True
-    camera_from_views: bool = True
-
-    def __post_init__(self) -> None:
-        positive = ("fb_px", "pose_fb_px", "ransac_px", "max_reproj_px", "angle_sigma_deg",
-                    "reproj_sigma", "fb_sigma", "q_contrast")  # fmt: skip
-        for name in positive:
-            if not getattr(self, name) > 0:
-                raise ValueError(f"{name}: must be > 0, got {getattr(self, name)}")
-        if self.min_inliers < 5 or self.max_ransac_points < self.min_inliers:
-            raise ValueError("min_inliers: must be >= 5 and <= max_ransac_points")
-        if self.min_parallax_px < 0 or self.conf_max < 0:
-            raise ValueError("min_parallax_px, conf_max: must be >= 0")
 
 
 class TwoViewPrior:
@@ -177,7 +104,7 @@ class TwoViewPrior:
         self,
         K: FloatArray | None = None,
         image_size: tuple[int, int] | None = None,
-        cfg: TwoViewPriorConfig = TwoViewPriorConfig(),
+        cfg: TwoViewPriorConfig = TwoViewPriorConfig(),  # noqa: B008 (frozen, immutable)
         focal_scale: float = 1.0,
     ) -> None:
         if K is not None:
@@ -195,6 +122,7 @@ class TwoViewPrior:
         self.views = ByteLRU(cfg.desc.cache_bytes)
         #: The third view: each image's depth from its widest-angle pair (``third_view``).
         self.refs = ReferenceDepths(cfg.desc.cache_bytes)
+        self._prefetch = FlowPrefetch(self.cache, pair_work(cfg), pair_keys)
 
     def K_for(self, frame: Frame) -> FloatArray:
         """Intrinsics at the frame's resolution (the focal guess when uncalibrated)."""
@@ -237,6 +165,7 @@ class TwoViewPrior:
         """
         if frame_i.shape != frame_j.shape:
             raise ValueError(f"frame_j: size {frame_j.shape} differs from frame_i {frame_i.shape}")
+        self._prefetch.settle(frame_i, frame_j)
         D_ii, Q_ii = self._desc(frame_i)
         D_jj, Q_jj = self._desc(frame_j)
         if frame_i.index == frame_j.index and np.array_equal(frame_i.rgb, frame_j.rgb):
@@ -251,6 +180,21 @@ class TwoViewPrior:
             return PairPrediction(X_ii, C_ii, D_ii, Q_ii, X_ji, np.ones_like(C_ii), D_jj, Q_fail)
         X_ii, C_ii, X_ji, C_ji = geo
         return PairPrediction(X_ii, C_ii, D_ii, Q_ii, X_ji, C_ji, D_jj, Q_jj)
+
+    @property
+    def prefetching(self) -> bool:
+        """Whether :meth:`prefetch` does anything (``cfg.prefetch``)."""
+        return self.cfg.prefetch
+
+    def prefetch(self, frame: Frame, partner: Frame | None = None) -> None:
+        """Start the work of ``pair(frame, partner)`` that depends on the two images alone
+        (and ``frame``'s descriptors) on a worker thread (:mod:`twoview_prefetch`)."""
+        if self.cfg.prefetch:
+            self._prefetch.start(frame, partner)
+
+    def join_prefetch(self) -> None:
+        """Wait for the prefetch in flight, if any, and cache its results."""
+        self._prefetch.join()
 
     # -- geometry ----------------------------------------------------------------------------
     def reconstruct(self, frame_i: Frame, frame_j: Frame):

@@ -336,6 +336,13 @@ class SlamSystem(ParallaxSteps, RotationStart):
             self.last_tracked = replace(self.last_tracked, T_WC=sim3.mul(S, self.last_tracked.T_WC))
         self.divergence.reset()  # the path continues in the earlier map's frame
 
+    def pair_partner(self) -> Frame | None:
+        """The frame the next frame will most likely be paired with, for the prior's
+        prefetch: the last keyframe while tracking, the waiting candidate in INIT."""
+        if self.mode == Mode.TRACKING and len(self.keyframes):
+            return self.keyframes[-1].frame
+        return self.init_candidate if self.mode == Mode.INIT else None
+
     def wait_for_backend(self) -> None:
         """Return once the background worker (if any) has processed every queued keyframe."""
         if self.worker is not None:

@@ -106,7 +106,7 @@ def run_slam(
                         ) from None
                     _skip(system, skipped, source.name, i, exc)
                 else:
-                    frames.prefetch(i + 1)  # the prior's own work on frame i + 1, beside i's
+                    frames.prefetch(i + 1, system.pair_partner())  # beside frame i's work
                     status = system.process(frame)
                     if observer is not None:
                         observer.after_frame(i, frame, system, status)
@@ -153,9 +153,10 @@ class _ReadAhead:
     current frame's work instead of adding to it. Only the worker reads the sequence, in
     order, one frame at a time, so a reader with state (a video capture, a render cache) sees
     the same calls as a plain loop; a read's exception is raised when that frame's turn comes.
-    With a prior that prefetches (``RGBDPrior.prefetching``, off by default), :meth:`prefetch`
-    also hands frame ``i + 1`` to ``prior.prefetch`` before frame ``i`` is processed, whose
-    worker thread does that frame's own work while frame ``i`` is tracked.
+    With a prior that prefetches (``TwoViewPrior.prefetching``, on by default;
+    ``RGBDPrior.prefetching``, off), :meth:`prefetch` also hands frame ``i + 1`` and its likely
+    partner to ``prior.prefetch`` before frame ``i`` is processed, whose worker thread does that
+    frame's own work (and the two-view prior the pair's flow) while frame ``i`` is tracked.
     """
 
     def __init__(self, seq: Any, prior: Any) -> None:
@@ -183,8 +184,9 @@ class _ReadAhead:
         finally:
             self._submit(i + 1)
 
-    def prefetch(self, i: int) -> None:
-        """Hand frame ``i`` to the prior's prefetch (when the prior prefetches)."""
+    def prefetch(self, i: int, partner: Frame | None) -> None:
+        """Hand frame ``i`` to the prior's prefetch (when the prior prefetches), with the frame
+        it will most likely be paired with (``SlamSystem.pair_partner``)."""
         if not self.on or i >= len(self.seq):
             return
         self._submit(i)
@@ -192,7 +194,7 @@ class _ReadAhead:
             frame = self.pending[i].result()
         except (OSError, ValueError, cv2.error):
             return  # raised by get(i) in its turn
-        self.prior.prefetch(frame)
+        self.prior.prefetch(frame, partner)
 
     def close(self) -> None:
         """Wait for the prior's worker and the reader: no thread outlives the run."""
