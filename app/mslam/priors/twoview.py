@@ -122,7 +122,7 @@ class TwoViewPrior:
         self.views = ByteLRU(cfg.desc.cache_bytes)
         #: The third view: each image's depth from its widest-angle pair (``third_view``).
         self.refs = ReferenceDepths(cfg.desc.cache_bytes)
-        self._prefetch = FlowPrefetch(self.cache, pair_work(cfg), pair_keys)
+        self._prefetch = FlowPrefetch(pair_work(cfg), pair_keys)
 
     def K_for(self, frame: Frame) -> FloatArray:
         """Intrinsics at the frame's resolution (the focal guess when uncalibrated)."""
@@ -136,7 +136,8 @@ class TwoViewPrior:
         return scale_intrinsics(self.K, size, (W, H))
 
     def _cached(self, key: tuple, fn):
-        return self.cache.get(key, fn)
+        """The cached value of ``key``, else the prefetched one, else ``fn()``; stored."""
+        return self.cache.get(key, lambda: _or_else(self._prefetch.take(key), fn))
 
     def _desc(self, frame: Frame) -> tuple[FloatArray, FloatArray]:
         key = ("desc", int(frame.index), hash(frame.rgb.tobytes()))
@@ -165,7 +166,6 @@ class TwoViewPrior:
         """
         if frame_i.shape != frame_j.shape:
             raise ValueError(f"frame_j: size {frame_j.shape} differs from frame_i {frame_i.shape}")
-        self._prefetch.settle(frame_i, frame_j)
         D_ii, Q_ii = self._desc(frame_i)
         D_jj, Q_jj = self._desc(frame_j)
         if frame_i.index == frame_j.index and np.array_equal(frame_i.rgb, frame_j.rgb):
@@ -190,10 +190,10 @@ class TwoViewPrior:
         """Start the work of ``pair(frame, partner)`` that depends on the two images alone
         (and ``frame``'s descriptors) on a worker thread (:mod:`twoview_prefetch`)."""
         if self.cfg.prefetch:
-            self._prefetch.start(frame, partner)
+            self._prefetch.start(frame, partner, self.cache)
 
     def join_prefetch(self) -> None:
-        """Wait for the prefetch in flight, if any, and cache its results."""
+        """Wait for the prefetch in flight, if any (what was not taken is dropped)."""
         self._prefetch.join()
 
     # -- geometry ----------------------------------------------------------------------------
@@ -205,7 +205,7 @@ class TwoViewPrior:
         cfg = self.cfg
         K = self.K_for(frame_i)
         key = ("flow", hash(frame_i.rgb.tobytes()), hash(frame_j.rgb.tobytes()))
-        F_ij, F_ji, guided = self._cached(key, lambda: self._flow(frame_i, frame_j))
+        F_ij, F_ji, guided = self.cache.get(key, lambda: self._flow(frame_i, frame_j, key))
         self.last_R_ji = None
         z_ref = [self._remembered_depth(f, F_ij.shape[:2]) for f in (frame_i, frame_j)]
         R, t, n_inl, parallax, angle, ambiguous = self._pose_of(key, F_ij, F_ji, K, z_ref)
@@ -250,22 +250,33 @@ class TwoViewPrior:
             return (R.T, -R.T @ t, n_inl, parallax, angle, ambiguous)
         return self._cached(key, lambda: self._pose(F_ij, F_ji, K, *z_ref))
 
-    def _flow(self, frame_i: Frame, frame_j: Frame):
-        """``F_ij, F_ji, guided`` (:func:`guided_flow`, keypoints cached per image), or the
-        flows already computed for (j, i), swapped."""
-        rev = self._reverse(("flow", hash(frame_i.rgb.tobytes()), hash(frame_j.rgb.tobytes())))
+    def _flow(self, frame_i: Frame, frame_j: Frame, key: tuple):
+        """``F_ij, F_ji, guided`` (:func:`guided_flow`, keypoints cached per image; or
+        prefetched, its keypoints looked up as the flow did), or the flows already computed
+        for (j, i), swapped."""
+        rev = self._reverse(key)
         if rev is not None:
             return rev[1], rev[0], rev[2]
         kp: list[Callable[[], object] | None] = [None, None]
         if self.cfg.guide.enabled:
             kp = [self._keypoints(frame_i), self._keypoints(frame_j)]
+        pre = self._prefetch.take(key)
+        if pre is not None:
+            flows, guide_used = pre
+            for get in kp if guide_used else []:
+                if get is not None:
+                    get()
+            return flows
         return guided_flow(frame_i.rgb, frame_j.rgb, kp[0], kp[1], self.cfg.fb_px, self.cfg.guide)
 
     def _keypoints(self, frame: Frame) -> Callable[[], object]:
         """The frame's SIFT keypoints on demand: computed (once per image) only when a pair
-        needs the guide."""
+        needs the guide; or prefetched, if the prefetch is done with them."""
         key = lambda: ("sift", hash(frame.rgb.tobytes()))
-        return lambda: self._cached(key(), lambda: sift_keypoints(frame.rgb, self.cfg.guide))
+        compute = lambda: sift_keypoints(frame.rgb, self.cfg.guide)
+        return lambda: self.cache.get(
+            key(), lambda: _or_else(self._prefetch.take(key(), wait=False), compute)
+        )
 
     def _remember(self, frame: Frame, X: FloatArray, C: FloatArray, angle_deg: float) -> None:
         X = X / np.median(np.linalg.norm(X, axis=-1))
@@ -342,3 +353,8 @@ class TwoViewPrior:
         X_a = backproject(z, K)
         X_i_out = X_a if forward else (X_a - t) @ R  # X_i = R_jiᵀ (X_j - t_ji)
         return X_i_out, C, ok
+
+
+def _or_else(value, fn):
+    """``value`` unless it is None, else ``fn()``."""
+    return fn() if value is None else value

@@ -4,19 +4,21 @@ The frame loop (``mslam.system.run``) reads frame t + 1 before it processes fram
 it to :meth:`mslam.priors.twoview.TwoViewPrior.prefetch` together with the frame it will
 most likely be paired with: the last keyframe (``SlamSystem.pair_partner``). A worker
 thread then computes what depends on those two images alone — the frame's patch
-descriptors, its SIFT keypoints when the flow needs its guide, and the dense flow both ways
-(:func:`mslam.priors.twoview_flow.guided_flow`) — while the main thread matches, tracks and
-solves frame t. The pose of the pair is not prefetched: it depends on the depths remembered
-from earlier pairs (the third view), which frame t may still change.
+descriptors, both images' SIFT keypoints when the flow needs its guide, and the dense flow
+both ways (:func:`mslam.priors.twoview_flow.guided_flow`) — while the main thread matches,
+tracks and solves frame t. The pose of the pair is not prefetched: it depends on the depths
+remembered from earlier pairs (the third view), which frame t may still change.
 
-The worker never touches the prior's cache: the caller's thread looks up what is already
-cached before the worker starts and stores the worker's results when the pair is asked for
-(:meth:`FlowPrefetch.settle`), at the next prefetch or at :meth:`FlowPrefetch.join`. The
-same functions run on the same images, so the values are those computed on demand and the
-trajectory is the same bit for bit (tests/app/test_twoview_prefetch.py). When frame t becomes
-a keyframe, frame t + 1 is paired with it instead and the prefetched flow is not used (it may
-still serve a later pair of the same two images). A failed step is dropped: it runs again,
-and raises, when its result is asked for.
+The worker never touches the prior's cache, and neither does the prefetch: the prior takes a
+prefetched value (:meth:`FlowPrefetch.take`) at the moment it would have computed it, and
+stores it then, as its own. The cache therefore sees the same entries in the same order as
+without the prefetch, and evicts the same ones: that matters, because the prior reuses a
+cached pair the other way round (its flows swapped, its pose inverted), which is not the
+same number as computing that direction afresh. So the values are those computed on demand
+and the trajectory is the same bit for bit (tests/app/test_twoview_prefetch.py). What is not
+taken — frame t became a keyframe, and frame t + 1 is paired with it instead — is dropped
+when frame t + 3's prefetch starts. A failed step is dropped too: it runs again, and raises,
+when its result is asked for.
 
 DIS and SIFT (OpenCV) release the GIL, so on two cores they overlap the main thread's
 single-threaded Python (the pose refinement, the graph): benchmarks/RESULTS.md, "The next
@@ -39,61 +41,69 @@ from mslam.priors.twoview_flow import guided_flow, sift_keypoints
 
 __all__ = ["FlowPrefetch", "pair_keys", "pair_work"]
 
-#: ``(frame, partner) -> {cache key: value}``: the prefetched work of one pair, given the
-#: cached values it may reuse (``dict`` keyed like the cache).
+#: ``(frame, partner, known) -> {cache key: value}``: the prefetched work of one pair, given
+#: the values already cached that it may reuse (keyed like the cache).
 PairWork = Callable[[Frame, Frame | None, dict[Hashable, Any]], dict[Hashable, Any]]
 
 
 class FlowPrefetch:
-    """One prefetch in flight at a time (module docstring).
+    """The prefetches of the next two frames (module docstring): the frame loop starts frame
+    t + 1's before it processes frame t, so frame t's results, started one frame earlier, are
+    kept until frame t + 2's prefetch starts. One worker runs at a time.
 
     Args:
-        cache: the prior's cache, which receives the results.
-        work: computes one pair's entries on the worker thread (it must not touch ``cache``).
+        work: computes one pair's entries on the worker thread (it must not touch the cache).
         keys: ``(frame, partner) -> the cache keys work may produce``; the ones already
             cached are passed to ``work`` as its known values.
     """
 
-    def __init__(
-        self,
-        cache: ByteLRU,
-        work: PairWork,
-        keys: Callable[[Frame, Frame | None], list[Hashable]],
-    ) -> None:
-        self.cache, self.work, self.keys = cache, work, keys
-        self._index: int | None = None  # the frame being prefetched
+    def __init__(self, work: PairWork, keys: Callable[[Frame, Frame | None], list[Hashable]]):
+        self.work, self.keys = work, keys
         self._thread: threading.Thread | None = None
-        self._out: dict[Hashable, Any] = {}
+        #: (keys, results) of the earlier prefetch and of the latest one (the thread's).
+        self._gens: list[tuple[set[Hashable], dict[Hashable, Any]]] = []
 
-    def start(self, frame: Frame, partner: Frame | None) -> None:
-        """Join the prefetch in flight, then start ``frame``'s (and its pair's) work."""
-        self.join()
-        known = {k: v for k in self.keys(frame, partner) if (v := self.cache.peek(k)) is not None}
+    def start(self, frame: Frame, partner: Frame | None, cache: ByteLRU) -> None:
+        """Start ``frame``'s (and its pair's) work once the running one is done, dropping
+        what the prefetch before that left untaken; ``cache`` is only looked at (``peek``),
+        here, in the caller's thread."""
+        self._wait()
+        keys = self.keys(frame, partner)
+        known = {k: v for k in keys if (v := cache.peek(k)) is not None}
         out: dict[Hashable, Any] = {}
 
         def run() -> None:
             with contextlib.suppress(Exception):  # dropped: recomputed (and raised) on demand
                 out.update(self.work(frame, partner, known))
 
-        self._index, self._out = int(frame.index), out
+        self._gens = [*self._gens[-1:], (set(keys), out)]
         self._thread = threading.Thread(target=run, name="twoview-prefetch", daemon=True)
         self._thread.start()
 
-    def settle(self, *frames: Frame) -> None:
-        """Join the prefetch when it is working on one of ``frames``."""
-        if self._index is not None and any(int(f.index) == self._index for f in frames):
-            self.join()
+    def take(self, key: Hashable, wait: bool = True) -> Any:
+        """The prefetched value of ``key``, or None; a value is taken once. Waits for the
+        worker when it may produce ``key``, unless ``wait`` is false (then None while it runs:
+        a keyframe's keypoints, which the current frame may need before the worker is done)."""
+        for n, (keys, out) in enumerate(self._gens):
+            if key not in keys:
+                continue
+            if n == len(self._gens) - 1 and self._thread is not None:
+                if not wait and self._thread.is_alive():
+                    return None
+                self._wait()
+            if key in out:
+                return out.pop(key)
+        return None
 
     def join(self) -> None:
-        """Wait for the prefetch in flight, if any, and store its results in the cache."""
-        thread, self._thread, self._index = self._thread, None, None
-        if thread is None:
-            return
-        thread.join()
-        for key, value in self._out.items():
-            if key not in self.cache:
-                self.cache.put(key, value)
-        self._out = {}
+        """Wait for the prefetch in flight, if any, and drop what was not taken."""
+        self._wait()
+        self._gens = []
+
+    def _wait(self) -> None:
+        if self._thread is not None:
+            self._thread.join()
+        self._thread = None
 
 
 def pair_keys(frame: Frame, partner: Frame | None) -> list[Hashable]:
@@ -110,7 +120,9 @@ def pair_keys(frame: Frame, partner: Frame | None) -> list[Hashable]:
 def pair_work(cfg: Any) -> PairWork:
     """The prefetch's work for a ``TwoViewPriorConfig``: what ``TwoViewPrior.pair(frame,
     partner)`` would compute from the two images alone, as ``{cache key: value}``; nothing
-    already ``known``, and no flow when the other direction's is known (the prior swaps it)."""
+    already ``known``, and no flow when the other direction's is known (the prior swaps it).
+    The flow's value is ``((F_ij, F_ji, guided), guide_used)``: whether the flow asked for the
+    keypoints, which the prior then looks up as its own flow would have."""
 
     def work(frame: Frame, partner: Frame | None, known: dict[Hashable, Any]) -> dict:
         keys = pair_keys(frame, partner)
@@ -120,8 +132,11 @@ def pair_work(cfg: Any) -> PairWork:
         if partner is None or keys[3] in known or keys[4] in known:
             return out
 
+        asked: list[Hashable] = []
+
         def keypoints(key: Hashable, f: Frame) -> Callable[[], Any]:
             def get() -> Any:  # on demand, as the prior's own: only when the guide is needed
+                asked.append(key)
                 if key not in known and key not in out:
                     out[key] = sift_keypoints(f.rgb, cfg.guide)
                 return known[key] if key in known else out[key]
@@ -131,7 +146,8 @@ def pair_work(cfg: Any) -> PairWork:
         kp: list[Callable[[], Any] | None] = [None, None]
         if cfg.guide.enabled:
             kp = [keypoints(keys[1], frame), keypoints(keys[2], partner)]
-        out[keys[3]] = guided_flow(frame.rgb, partner.rgb, kp[0], kp[1], cfg.fb_px, cfg.guide)
+        flows = guided_flow(frame.rgb, partner.rgb, kp[0], kp[1], cfg.fb_px, cfg.guide)
+        out[keys[3]] = (flows, bool(asked))
         return out
 
     return work
