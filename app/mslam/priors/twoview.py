@@ -250,10 +250,12 @@ class TwoViewPrior:
             return (R.T, -R.T @ t, n_inl, parallax, angle, ambiguous)
         return self._cached(key, lambda: self._pose(F_ij, F_ji, K, *z_ref))
 
-    def _flow(self, frame_i: Frame, frame_j: Frame, key: tuple):
+    def _flow(self, frame_i: Frame, frame_j: Frame, key: tuple | None = None):
         """``F_ij, F_ji, guided`` (:func:`guided_flow`, keypoints cached per image; or
         prefetched, its keypoints looked up as the flow did), or the flows already computed
-        for (j, i), swapped."""
+        for (j, i), swapped. ``key``: the pair's cache key (computed when not given)."""
+        if key is None:
+            key = ("flow", hash(frame_i.rgb.tobytes()), hash(frame_j.rgb.tobytes()))
         rev = self._reverse(key)
         if rev is not None:
             return rev[1], rev[0], rev[2]
