@@ -350,8 +350,8 @@ class RGBDPrior:
     def prefetch(self, frame: Frame, partner: Frame | None = None) -> None:
         """Start ``frame``'s own work (keypoints, descriptors, depth view, ICP target: nothing
         that depends on a keyframe, so ``partner`` is not used) on a worker thread; the same
-        functions as on demand, so the same values. They enter the cache when a pair or view of that frame is asked for,
-        or at the next :meth:`prefetch` or :meth:`join_prefetch`."""
+        functions as on demand, so the same values. They enter the cache when a pair or view
+        of that frame is asked for, or at the next :meth:`prefetch` or :meth:`join_prefetch`."""
         self.join_prefetch()
         if not self.cfg.prefetch:
             return

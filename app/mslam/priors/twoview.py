@@ -80,7 +80,14 @@ from mslam.priors.twoview_geometry import (
 )
 from mslam.priors.twoview_homography import homography_fit, homography_rotation
 from mslam.priors.twoview_planar import ReferenceDepths, choose_pose, pose_candidates
-from mslam.priors.twoview_prefetch import FlowPrefetch, pair_keys, pair_work
+from mslam.priors.twoview_prefetch import (
+    FlowPrefetch,
+    desc_key,
+    flow_key,
+    pair_keys,
+    pair_work,
+    sift_key,
+)
 from mslam_ref.conventions import FloatArray
 from mslam_ref.pointmap import backproject, scale_intrinsics
 
@@ -140,8 +147,9 @@ class TwoViewPrior:
         return self.cache.get(key, lambda: _or_else(self._prefetch.take(key), fn))
 
     def _desc(self, frame: Frame) -> tuple[FloatArray, FloatArray]:
-        key = ("desc", int(frame.index), hash(frame.rgb.tobytes()))
-        D, contrast = self._cached(key, lambda: patch_descriptors(frame.rgb, self.cfg.desc))
+        D, contrast = self._cached(
+            desc_key(frame), lambda: patch_descriptors(frame.rgb, self.cfg.desc)
+        )
         return D, descriptor_Q(contrast, self.cfg.q_gain, self.cfg.q_contrast)
 
     # -- protocol ----------------------------------------------------------------------------
@@ -204,7 +212,7 @@ class TwoViewPrior:
         """
         cfg = self.cfg
         K = self.K_for(frame_i)
-        key = ("flow", hash(frame_i.rgb.tobytes()), hash(frame_j.rgb.tobytes()))
+        key = flow_key(frame_i, frame_j)
         F_ij, F_ji, guided = self.cache.get(key, lambda: self._flow(frame_i, frame_j, key))
         self.last_R_ji = None
         z_ref = [self._remembered_depth(f, F_ij.shape[:2]) for f in (frame_i, frame_j)]
@@ -254,8 +262,7 @@ class TwoViewPrior:
         """``F_ij, F_ji, guided`` (:func:`guided_flow`, keypoints cached per image; or
         prefetched, its keypoints looked up as the flow did), or the flows already computed
         for (j, i), swapped. ``key``: the pair's cache key (computed when not given)."""
-        if key is None:
-            key = ("flow", hash(frame_i.rgb.tobytes()), hash(frame_j.rgb.tobytes()))
+        key = flow_key(frame_i, frame_j) if key is None else key
         rev = self._reverse(key)
         if rev is not None:
             return rev[1], rev[0], rev[2]
@@ -274,10 +281,9 @@ class TwoViewPrior:
     def _keypoints(self, frame: Frame) -> Callable[[], object]:
         """The frame's SIFT keypoints on demand: computed (once per image) only when a pair
         needs the guide; or prefetched, if the prefetch is done with them."""
-        key = lambda: ("sift", hash(frame.rgb.tobytes()))
         compute = lambda: sift_keypoints(frame.rgb, self.cfg.guide)
         return lambda: self.cache.get(
-            key(), lambda: _or_else(self._prefetch.take(key(), wait=False), compute)
+            sift_key(frame), lambda: _or_else(self._prefetch.take(sift_key(frame), False), compute)
         )
 
     def _remember(self, frame: Frame, X: FloatArray, C: FloatArray, angle_deg: float) -> None:

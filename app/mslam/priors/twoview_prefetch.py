@@ -24,7 +24,7 @@ DIS and SIFT (OpenCV) release the GIL, so on two cores they overlap the main thr
 single-threaded Python (the pose refinement, the graph): benchmarks/RESULTS.md, "The next
 frame's flow beside the current frame".
 
-Public names: FlowPrefetch, pair_keys, pair_work
+Public names: FlowPrefetch, desc_key, sift_key, flow_key, pair_keys, pair_work
 """
 
 from __future__ import annotations
@@ -39,7 +39,7 @@ from mslam.priors.cache import ByteLRU
 from mslam.priors.descriptors import patch_descriptors
 from mslam.priors.twoview_flow import guided_flow, sift_keypoints
 
-__all__ = ["FlowPrefetch", "pair_keys", "pair_work"]
+__all__ = ["FlowPrefetch", "desc_key", "flow_key", "pair_keys", "pair_work", "sift_key"]
 
 #: ``(frame, partner, known) -> {cache key: value}``: the prefetched work of one pair, given
 #: the values already cached that it may reuse (keyed like the cache).
@@ -106,14 +106,27 @@ class FlowPrefetch:
         self._thread = None
 
 
+def desc_key(frame: Frame) -> tuple:
+    """The two-view prior's cache key of ``frame``'s patch descriptors."""
+    return ("desc", int(frame.index), hash(frame.rgb.tobytes()))
+
+
+def sift_key(frame: Frame) -> tuple:
+    """The cache key of ``frame``'s SIFT keypoints (by content: a repeated image shares them)."""
+    return ("sift", hash(frame.rgb.tobytes()))
+
+
+def flow_key(frame_i: Frame, frame_j: Frame) -> tuple:
+    """The cache key of the flows of the pair (i, j) (by content); ``("flow", h_i, h_j)``."""
+    return ("flow", hash(frame_i.rgb.tobytes()), hash(frame_j.rgb.tobytes()))
+
+
 def pair_keys(frame: Frame, partner: Frame | None) -> list[Hashable]:
     """The two-view prior's cache keys of ``frame``'s own work and of the pair (frame,
     partner): descriptors, both images' keypoints, the flow and the flow the other way."""
-    h = hash(frame.rgb.tobytes())
-    keys: list[Hashable] = [("desc", int(frame.index), h), ("sift", h)]
+    keys: list[Hashable] = [desc_key(frame), sift_key(frame)]
     if partner is not None:
-        hp = hash(partner.rgb.tobytes())
-        keys += [("sift", hp), ("flow", h, hp), ("flow", hp, h)]
+        keys += [sift_key(partner), flow_key(frame, partner), flow_key(partner, frame)]
     return keys
 
 
@@ -125,29 +138,32 @@ def pair_work(cfg: Any) -> PairWork:
     keypoints, which the prior then looks up as its own flow would have."""
 
     def work(frame: Frame, partner: Frame | None, known: dict[Hashable, Any]) -> dict:
-        keys = pair_keys(frame, partner)
         out: dict[Hashable, Any] = {}
-        if keys[0] not in known:
-            out[keys[0]] = patch_descriptors(frame.rgb, cfg.desc)
-        if partner is None or keys[3] in known or keys[4] in known:
+        if desc_key(frame) not in known:
+            out[desc_key(frame)] = patch_descriptors(frame.rgb, cfg.desc)
+        if partner is None:
+            return out
+        key = flow_key(frame, partner)
+        if key in known or flow_key(partner, frame) in known:
             return out
 
         asked: list[Hashable] = []
 
-        def keypoints(key: Hashable, f: Frame) -> Callable[[], Any]:
+        def keypoints(f: Frame) -> Callable[[], Any]:
             def get() -> Any:  # on demand, as the prior's own: only when the guide is needed
-                asked.append(key)
-                if key not in known and key not in out:
-                    out[key] = sift_keypoints(f.rgb, cfg.guide)
-                return known[key] if key in known else out[key]
+                k = sift_key(f)
+                asked.append(k)
+                if k not in known and k not in out:
+                    out[k] = sift_keypoints(f.rgb, cfg.guide)
+                return known[k] if k in known else out[k]
 
             return get
 
         kp: list[Callable[[], Any] | None] = [None, None]
         if cfg.guide.enabled:
-            kp = [keypoints(keys[1], frame), keypoints(keys[2], partner)]
+            kp = [keypoints(frame), keypoints(partner)]
         flows = guided_flow(frame.rgb, partner.rgb, kp[0], kp[1], cfg.fb_px, cfg.guide)
-        out[keys[3]] = (flows, bool(asked))
+        out[key] = (flows, bool(asked))
         return out
 
     return work
