@@ -246,6 +246,20 @@ def test_calibration_size_mismatch_is_named_as_such(tmp_path, capsys):
     assert err.startswith("mslam run: error: --calib:") and "cannot read" not in err
 
 
+def test_folder_calibration_size_mismatch_names_the_folder(tmp_path, capsys):
+    seq = tmp_path / "seq"
+    assert main(["synth", "loop", "--out", str(seq), "--frames", "2", "--width", "32",
+                 "--height", "24"]) == 0  # fmt: skip
+    capsys.readouterr()
+    (seq / "calib.yaml").write_text(
+        "width: 64\nheight: 48\ncalibration: [50.0, 50.0, 32.0, 24.0]\n"
+    )
+    rc = main(["run", str(seq), "--out", str(tmp_path / "o"), "--prior", "twoview", *RUN])
+    err = one_line_error(capsys, rc, "does not match the calibration 64x48")
+    assert err.startswith(f"mslam run: error: {seq}: the folder's calibration file:")
+    assert "--calib" not in err
+
+
 def test_nan_translation_in_ground_truth_is_named(tmp_path):
     from mslam.formats import read_tum
 

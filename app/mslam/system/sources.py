@@ -109,7 +109,8 @@ def open_source(
     seq: Any = load_sequence(str(source or "synthetic:"), calib=cal)
     if len(seq) == 0:
         raise ValueError(f"{source}: the sequence has no frames")
-    first = _first_readable(seq, str(source or "synthetic"))
+    calib_from = "--calib" if cal else f"{source}: the folder's calibration file"
+    first = _first_readable(seq, str(source or "synthetic"), calib_from)
     H, W = first.shape
     if cal is not None:
         if (cal.width, cal.height) != (W, H):
@@ -187,9 +188,10 @@ def self_calibrate(source: Source) -> dict[str, object] | None:
     return {**estimate.as_dict(), "many_views": camera and camera.as_dict()}
 
 
-def _first_readable(seq: Any, name: str, tries: int = 10) -> Frame:
+def _first_readable(seq: Any, name: str, calib_from: str = "--calib", tries: int = 10) -> Frame:
     """The first frame that loads (the size and calibration checks need one); a calibration
-    that does not fit the images is reported as such, not as unreadable frames."""
+    that does not fit the images is reported as such, not as unreadable frames, naming where
+    it came from (``calib_from``: the option or the source folder's own file)."""
     from mslam.datasets.files import CalibrationMismatch
 
     first = None
@@ -197,7 +199,7 @@ def _first_readable(seq: Any, name: str, tries: int = 10) -> Frame:
         try:
             return seq[i]
         except CalibrationMismatch as exc:
-            raise ValueError(f"--calib: {exc}") from None
+            raise ValueError(f"{calib_from}: {exc}") from None
         except (OSError, ValueError, cv2.error) as exc:
             first = first or exc
     n = min(tries, len(seq))
