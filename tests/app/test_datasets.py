@@ -143,6 +143,50 @@ def test_video(tmp_path: Path) -> None:
     assert np.abs(sub[1].rgb.astype(int) - ref[3].rgb).mean() < 12  # backwards seek
 
 
+class _CountingCapture:
+    """A ``cv2.VideoCapture`` that counts its seeks."""
+
+    def __init__(self, cap) -> None:
+        self.cap, self.seeks = cap, 0
+
+    def set(self, *args):
+        self.seeks += 1
+        return self.cap.set(*args)
+
+    def __getattr__(self, name):
+        return getattr(self.cap, name)
+
+
+def test_video_skips_forward_by_decoding_and_reads_the_frames_a_seek_reads(
+    tmp_path: Path,
+) -> None:
+    from mslam.datasets.folders import GRAB_AHEAD
+
+    ref = make_sequence("loop", n_frames=40, width=W, height=H, seed=2)
+    path = tmp_path / "clip.avi"
+    wr = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 15.0, (W, H))
+    if not wr.isOpened():
+        pytest.skip("OpenCV build cannot write MJPG video")
+    for f in ref:
+        wr.write(cv2.cvtColor(f.rgb, cv2.COLOR_RGB2BGR))
+    wr.release()
+    seq = load_sequence(path)
+    seq[0]
+    seq._cap = counting = _CountingCapture(seq._cap)
+    # after frame 9 the next is 10: a skip of exactly GRAB_AHEAD decodes; back to 2 and from 3
+    # on to 39 (a skip longer than GRAB_AHEAD) seek
+    order = [3, 4, 9, 10 + GRAB_AHEAD, 2, 39]
+    frames = [seq[i].rgb for i in order]
+    assert counting.seeks == 2
+    for i, rgb in zip(order, frames, strict=True):
+        alone = load_sequence(path)
+        alone._load(0)
+        alone._cap.set(cv2.CAP_PROP_POS_FRAMES, i)  # what a seek reads
+        ok, bgr = alone._cap.read()
+        assert ok
+        np.testing.assert_array_equal(rgb, cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB))
+
+
 def test_euroc(tmp_path: Path) -> None:
     ref = make_sequence("forward", n_frames=4, width=W, height=H, seed=3)
     cam = tmp_path / "MH_01" / "mav0" / "cam0"
