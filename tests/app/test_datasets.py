@@ -124,15 +124,20 @@ def test_image_folder(tmp_path: Path) -> None:
     assert seq[2].timestamp == pytest.approx(2 / 30)
 
 
-def test_video(tmp_path: Path) -> None:
-    ref = make_sequence("loop", n_frames=10, width=W, height=H, seed=2)
-    path = tmp_path / "clip.avi"
+def _write_mjpg(path: Path, ref) -> Path:
+    """``ref``'s frames as an MJPG video at 15 frames/s (skips where OpenCV cannot write it)."""
     wr = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 15.0, (W, H))
     if not wr.isOpened():
         pytest.skip("OpenCV build cannot write MJPG video")
     for f in ref:
         wr.write(cv2.cvtColor(f.rgb, cv2.COLOR_RGB2BGR))
     wr.release()
+    return path
+
+
+def test_video(tmp_path: Path) -> None:
+    ref = make_sequence("loop", n_frames=10, width=W, height=H, seed=2)
+    path = _write_mjpg(tmp_path / "clip.avi", ref)
     seq = load_sequence(path)
     assert len(seq) == 10 and seq.K is None
     assert seq[3].timestamp == pytest.approx(3 / 15.0)
@@ -163,13 +168,7 @@ def test_video_skips_forward_by_decoding_and_reads_the_frames_a_seek_reads(
     from mslam.datasets.folders import GRAB_AHEAD
 
     ref = make_sequence("loop", n_frames=40, width=W, height=H, seed=2)
-    path = tmp_path / "clip.avi"
-    wr = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 15.0, (W, H))
-    if not wr.isOpened():
-        pytest.skip("OpenCV build cannot write MJPG video")
-    for f in ref:
-        wr.write(cv2.cvtColor(f.rgb, cv2.COLOR_RGB2BGR))
-    wr.release()
+    path = _write_mjpg(tmp_path / "clip.avi", ref)
     seq = load_sequence(path)
     seq[0]
     seq._cap = counting = _CountingCapture(seq._cap)
