@@ -48,6 +48,8 @@ from _results import git_rev, table, write_section
 from scipy.spatial.transform import Rotation
 from scoreboard import run_one
 
+from mslam.datasets.readers import read_calibration
+
 #: KITTI odometry camera 0 by image size: fx, fy, cx, cy (sequences 00-02 and 13-21; 03;
 #: 04-12), from the dataset's published calibration.
 KITTI_INTRINSICS = {
@@ -164,11 +166,10 @@ def variant(folder: Path, name: str, order: list[int]) -> Path:
         frames.append((t, folder / rows[i][1]))
         g = gt[np.argmin(np.abs(gt[:, 0] - stamps[i]))]
         poses.append((t, _pose(Rotation.from_quat(g[4:8]).as_matrix(), g[1:4])))
-    calib = folder.with_suffix(".yaml").read_text().splitlines()
-    w, h = (int(ln.split(":")[1]) for ln in calib[:2])
-    K = [float(v) for v in calib[2].split("[")[1].rstrip("]").split(",")]
+    c = read_calibration(folder.with_suffix(".yaml"))
     out = folder.parent / f"{folder.name}_{name}"
-    return write_tum(out, frames, poses, (w, h, K), f"{folder.name}, {name}")
+    calib = (c.width, c.height, [c.fx, c.fy, c.cx, c.cy])
+    return write_tum(out, frames, poses, calib, f"{folder.name}, {name}")
 
 
 def with_variants(folder: Path) -> list[Path]:
