@@ -9,7 +9,9 @@
   canonical points' distance) stays within the watch's factor; the spread watch reads the
   latter and stays silent, as on the same source without the growth (a world scale that runs
   away is flagged: ``test_map_spread_fires_on_a_steady_drift_or_runaway_spacing_only`` and
-  tests/app/test_divergence_drift.py).
+  tests/app/test_divergence_drift.py). The same prior claiming metric pointmaps (as one made
+  from depth does) has the watch read the Sim(3) scales alone, and at 3 % per frame it fires,
+  where the world scale stays under the factor.
 """
 
 from __future__ import annotations
@@ -34,7 +36,10 @@ GROWTH = 1.02  # the growing prior's scale factor per frame
 
 class _GrowingPrior:
     """Wraps a prior; every pointmap of a pair or mono call on frame i is scaled by
-    ``growth ** i`` (a prior whose scale runs away slowly, the same in both pointmaps)."""
+    ``growth ** i`` (a prior whose scale runs away slowly, the same in both pointmaps), so its
+    pointmaps are not in metres."""
+
+    metric = False
 
     def __init__(self, prior, growth: float) -> None:
         self._p, self._g = prior, growth
@@ -51,6 +56,12 @@ class _GrowingPrior:
         k = self._g**frame_i.index
         return type(p)(p.X_ii * k, p.C_ii, p.D_ii, p.Q_ii,
                        p.X_ji * k, p.C_ji, p.D_ji, p.Q_ji)  # fmt: skip
+
+
+class _MetricGrowingPrior(_GrowingPrior):
+    """The growing prior claiming metric pointmaps (as one made from depth does)."""
+
+    metric = True
 
 
 class _KeyframePosesAtNewMap:
@@ -168,3 +179,13 @@ def test_the_spread_watch_reads_the_world_scale_not_the_prior_s(growth) -> None:
     assert world.max() < cfg.max_scale_drift  # the map's scale in world units holds
     if growth != 1.0:  # while the Sim(3) scales make up for the prior's growth
         assert T[-1, 7] < 0.8 * T[0, 7]
+
+
+def test_for_a_metric_prior_the_spread_watch_reads_the_sim3_scales() -> None:
+    # In metres a keyframe's points measure the scene, so only the Sim(3) scales can drift:
+    # the same 3 % growth per frame that the world scale leaves under the watch's factor
+    # (module docstring) is a scale drift when the prior claims metres.
+    _, s = _run(lambda p: _MetricGrowingPrior(p, 1.03))
+    spread = [e for e in s["divergence_events"] if e["kind"] == "spread"]
+    assert spread and "scale shrank" in spread[0]["reason"]
+    assert any("the map runs away" in w for w in s["warnings"])

@@ -15,6 +15,10 @@ pixels without depth, two-view pixels that failed triangulation) or a degenerate
 The map's fusion keeps such points out of the exported positions and the export never writes
 them (``mslam.system.tracker.without_filler``, ``output.C_conf_threshold`` > 1).
 
+A prior whose pointmaps are in metres (made from depth) says so with a class attribute
+``metric = True``; one without the attribute counts as normalised, as MASt3R's are (the spread
+watch reads what can drift accordingly: ``mslam.system.global_opt.Backend.spread_depths``).
+
 Public names, in reading order:
     DESC_DIM, NO_INFO_C, PairPrediction, Prior, check_prediction
 """

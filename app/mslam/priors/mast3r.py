@@ -41,7 +41,7 @@ import os
 import threading
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -201,6 +201,9 @@ class Mast3rPrior:
         cfg: adapter settings.
         backend: tensor backend; default :class:`TorchBackend` on ``cfg.device``.
     """
+
+    #: Pointmaps at a scale of their own, not metres (mslam.system.global_opt.Backend.spread_depths).
+    metric: ClassVar[bool] = False
 
     def __init__(self, model, cfg: Mast3rConfig = Mast3rConfig(), backend=None) -> None:
         for name in ("_encode_image", "_decoder", "_downstream_head"):

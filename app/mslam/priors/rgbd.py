@@ -39,6 +39,7 @@ import time
 from collections import defaultdict
 from collections.abc import Callable
 from contextlib import contextmanager
+from typing import ClassVar
 
 import cv2
 import numpy as np
@@ -106,6 +107,10 @@ class RGBDPrior:
 
     Use :meth:`from_intrinsics` to build one from ``K`` and an image size instead.
     """
+
+    #: Pointmaps in metres (made from depth): a keyframe's Sim(3) scale alone is the map's
+    #: scale drift (mslam.system.global_opt.Backend.spread_depths).
+    metric: ClassVar[bool] = True
 
     def __init__(
         self,

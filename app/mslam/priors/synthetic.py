@@ -33,6 +33,7 @@ Public names, in reading order:
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 import cv2
 import numpy as np
@@ -140,6 +141,10 @@ class SyntheticPrior:
             ``T_WC``. Frames of another size get ``K`` rescaled.
         cfg: the noise model.
     """
+
+    #: Pointmaps in metres (made from depth): a keyframe's Sim(3) scale alone is the map's
+    #: scale drift (mslam.system.global_opt.Backend.spread_depths).
+    metric: ClassVar[bool] = True
 
     def __init__(self, sequence, cfg: SyntheticPriorConfig = SyntheticPriorConfig()) -> None:
         if sequence.K is None:

@@ -59,6 +59,7 @@ Public names, in reading order:
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import ClassVar
 
 import numpy as np
 
@@ -103,6 +104,9 @@ class TwoViewPrior:
         cfg: parameters.
         focal_scale: uncalibrated, the focal length over the guess's.
     """
+
+    #: Pointmaps at a scale of their own, not metres (mslam.system.global_opt.Backend.spread_depths).
+    metric: ClassVar[bool] = False
 
     #: The frontend waits for a pair with enough parallax before fixing the first keyframe.
     needs_parallax = True

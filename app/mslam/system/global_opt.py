@@ -178,7 +178,16 @@ class Backend:
         # The spread watch reads the current map's keyframes after any map a merge passed over.
         T_kf = self.keyframes.poses()[max([self.map_start, *(b for _, b in self.excluded)]) :]
         self.divergence.check_map(int(self.keyframes[k].frame.index), T_kf,
-                                  self.keyframe_depths(len(T_kf)))  # fmt: skip
+                                  self.spread_depths(len(T_kf)))  # fmt: skip
+
+    def spread_depths(self, n: int) -> FloatArray | None:
+        """What the spread watch reads beside the last ``n`` keyframes' Sim(3) scales: their
+        points' median distance (:meth:`keyframe_depths`) for a prior whose pointmaps have a
+        scale of their own, None for a metric one (``metric``: made from depth). In metres a
+        keyframe's points already measure the scene, which changes when the camera turns
+        towards farther surfaces; only the scale ``s_k`` can drift (benchmarks/RESULTS.md,
+        "The spread watch with depth")."""
+        return None if getattr(self.prior, "metric", False) else self.keyframe_depths(n)
 
     def keyframe_depths(self, n: int) -> FloatArray:
         """(n,) median distance of the canonical points of the last ``n`` keyframes to their
