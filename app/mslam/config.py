@@ -165,6 +165,10 @@ class SlamConfig:
         return max(self._grid_stride("tracking", "keyframe_cells", shape),
                    self.tracking_pixel_stride(shape))  # fmt: skip
 
+    def keyframe_first_ratio(self) -> float:
+        """``tracking.keyframe_first_ratio`` (0 when absent: upstream's fixed threshold)."""
+        return float(dict(self.sections.get("tracking", {})).get("keyframe_first_ratio", 0.0))
+
     def retrieval(self) -> Any:
         """``mslam_ref.retrieval.RetrievalConfig`` from ``retrieval.*`` (the one place the
         retrieval settings live; keys not in the YAML keep the dataclass defaults)."""

@@ -48,6 +48,7 @@ RANGES: dict[str, tuple[bool, float, float, bool]] = {
     "tracking.depth_eps": (False, 0, _INF, True),
     "tracking.pixels_per_frame": (True, 0, 1_000_000_000, False),
     "tracking.keyframe_cells": (True, 0, 1_000_000_000, False),
+    "tracking.keyframe_first_ratio": (False, 0, 1, False),
     "tracking.min_pair_parallax_px": (False, 0, _INF, False),
     "local_opt.pin": (True, 1, 1000, False),
     "local_opt.window_size": (False, 0, _INF, True),

@@ -21,7 +21,7 @@ Sign convention (tracker.py): ``r = z - h(T)``, ``J = dr/dxi = -dh/dxi``, ``H = 
 Public names, in reading order:
     TrackingConfig, TrackingInfo, match_quality, tracking_masks, match_fraction,
     ray_dist_residual_and_jacobian, check_problem, linearize, solve, solve_with,
-    needs_new_keyframe
+    keyframe_overlap, needs_new_keyframe
 """
 
 from __future__ import annotations
@@ -50,6 +50,7 @@ __all__ = [
     "TrackingConfig",
     "TrackingInfo",
     "check_problem",
+    "keyframe_overlap",
     "linearize",
     "match_fraction",
     "match_quality",
@@ -167,36 +168,22 @@ def match_fraction(valid_opt: BoolArray) -> float:
     return float(v.mean()) if len(v) else 0.0
 
 
-def needs_new_keyframe(
-    idx_f2k: IntArray,
-    valid_match_k: BoolArray,
-    valid_kf: BoolArray,
-    cfg: TrackingConfig = TrackingConfig(),
-    n_cells: int | None = None,
-) -> bool:
-    """New-keyframe test: too few good matches or too few distinct frame pixels reached.
+def keyframe_overlap(
+    idx_f2k: IntArray, valid_match_k: BoolArray, valid_kf: BoolArray, n_cells: int | None = None
+) -> float:
+    """How much of the keyframe the frame still sees, in [0, 1]: the new-keyframe test's
+    statistic, ``min(mean(valid_kf), |unique(idx_f2k[valid_match_k])| / n_cells)``.
 
-    Paper: §3.4 (first sentence, threshold ω_k). Upstream: tracker.py::track (docs/upstream.md §5.5; the code counts distinct
-    *frame* pixels, the paper says keyframe pixels).
-
-        match_frac_k  = mean(valid_kf)
-        unique_frac_f = |unique(idx_f2k[valid_match_k])| / n_cells
-        new_kf = min(match_frac_k, unique_frac_f) < match_frac_thresh
+    Paper: §3.4 (first sentence). Upstream: tracker.py::track (docs/upstream.md §5.5; the code
+    counts distinct *frame* pixels, the paper says keyframe pixels).
 
     Args:
         idx_f2k: (N,) frame pixel matched to each keyframe pixel (the frame has N pixels too).
-        valid_match_k: (N,) bool.
-        valid_kf: (N,) bool from :func:`tracking_masks`.
-        cfg: ``match_frac_thresh`` (0.333).
-        n_cells: the number of values ``idx_f2k`` can take, when it holds the cells the frame
-            pixels fall in rather than the pixels (``1 <= n_cells <= N``; default N).
-
-    Returns:
-        True when the frame should become a keyframe.
+        valid_match_k: (N,) bool; valid_kf: (N,) bool from :func:`tracking_masks`.
+        n_cells: the values ``idx_f2k`` can take when it holds cells of frame pixels (1..N).
     """
     vm = as_flat_bool(valid_match_k, "valid_match_k")
-    n = len(vm)
-    if n == 0:
+    if (n := len(vm)) == 0:
         raise ValueError("valid_match_k: empty mask")
     idx = as_flat_index(idx_f2k, "idx_f2k", n)
     if len(idx) != n:
@@ -205,9 +192,20 @@ def needs_new_keyframe(
     cells = n if n_cells is None else int(n_cells)
     if not 1 <= cells <= n:
         raise ValueError(f"n_cells: expected 1..{n}, got {n_cells}")
-    match_frac_k = vk.mean()
-    unique_frac_f = len(np.unique(idx[vm])) / cells
-    return bool(min(match_frac_k, unique_frac_f) < cfg.match_frac_thresh)
+    return float(min(vk.mean(), len(np.unique(idx[vm])) / cells))  # match_frac_k, unique_frac_f
+
+
+def needs_new_keyframe(
+    idx_f2k: IntArray,
+    valid_match_k: BoolArray,
+    valid_kf: BoolArray,
+    cfg: TrackingConfig = TrackingConfig(),
+    n_cells: int | None = None,
+) -> bool:
+    """New-keyframe test (paper §3.4, threshold ω_k = ``cfg.match_frac_thresh``, 0.333;
+    upstream tracker.py::track): True when :func:`keyframe_overlap` (same arguments) is below
+    the threshold."""
+    return bool(keyframe_overlap(idx_f2k, valid_match_k, valid_kf, n_cells) < cfg.match_frac_thresh)
 
 
 # --- residuals --------------------------------------------------------------------------------

@@ -223,6 +223,23 @@ def test_needs_new_keyframe_hand_cases() -> None:
             tracking.needs_new_keyframe(idx % 4, ok, ok, cfg, n_cells=bad)
 
 
+def test_keyframe_overlap_is_the_statistic_the_test_compares() -> None:
+    n = 12
+    idx, ok = np.arange(n), np.ones(n, bool)
+    vk = np.zeros(n, bool)
+    vk[:6] = True
+    assert tracking.keyframe_overlap(idx, ok, ok) == 1.0
+    assert tracking.keyframe_overlap(np.repeat([0, 1, 2], 4), ok, ok) == 0.25
+    assert tracking.keyframe_overlap(idx, ok, vk) == 0.5  # the match share binds
+    assert tracking.keyframe_overlap(np.repeat([0, 1, 2], 4), ok, ok, n_cells=4) == 0.75
+    rng = np.random.default_rng(3)
+    for _ in range(50):
+        i, m, v = rng.integers(0, n, n), rng.random(n) < 0.7, rng.random(n) < 0.8
+        thresh = float(rng.random())
+        got = tracking.needs_new_keyframe(i, m, v, TrackingConfig(match_frac_thresh=thresh))
+        assert got == (tracking.keyframe_overlap(i, m, v) < thresh)
+
+
 def test_bad_inputs() -> None:
     X_k, X_f, T = _problem(8)
     Q, v = np.full(H * W, 2.0), np.ones(H * W, bool)

@@ -13,7 +13,9 @@ decode of the pair (frame, keyframe) in the keyframe's camera:
 4. fusion of the keyframe's canonical pointmap with ``X_kk = T_CkCf · X_kf`` (paper Eq. 8),
    and of the map's copy of it (``Keyframe.X_map``) with filled-in points (``C = NO_INFO_C``)
    kept out of the average (:func:`without_filler`);
-5. the new-keyframe test (docs/upstream.md §5.5) as a recommendation to the caller.
+5. the new-keyframe test (docs/upstream.md §5.5) as a recommendation to the caller; with
+   ``tracking.keyframe_first_ratio`` its threshold is capped relative to the overlap of the
+   first frame tracked against the keyframe (:meth:`Tracker._keyframe_threshold`).
 
 Too few valid matches or a failed solve mean the frame is lost (``None``).
 
@@ -147,6 +149,8 @@ class Tracker:
         self.fusion_cfg = cfg.fusion()
         #: (H·W,) for every keyframe pixel, its match in the last frame (upstream ``idx_f2k``).
         self.idx_f2k: np.ndarray | None = None
+        #: (keyframe's frame index, the overlap of the first frame tracked against it).
+        self._first_overlap: tuple[int, float] | None = None
         # With the fast kernels, matching and fusion keep the keyframe's descriptors and fused
         # pointmap on the device between frames (mslam_fast.resident); same results.
         res = kernels.resident
@@ -221,10 +225,42 @@ class Tracker:
             self._fuse(kf, p, T_CkCf)
         cell = self.cfg.keyframe_cell_stride((H, W))
         n_cells = len(range(cell // 2, H, cell)) * len(range(cell // 2, W, cell))
+        cells_f = grid_cells(idx_f2k[g], (H, W), cell)
+        thresh = self._keyframe_threshold(kf, cells_f, valid_match_k[g], valid_kf[on], n_cells)
         wants = tracking.needs_new_keyframe(
-            grid_cells(idx_f2k[g], (H, W), cell), valid_match_k[g], valid_kf[on], cfg, n_cells
+            cells_f, valid_match_k[g], valid_kf[on], replace(cfg, match_frac_thresh=thresh), n_cells
         )
         return TrackResult(T_CkCf, T_WC, bool(wants))
+
+    def _keyframe_threshold(
+        self,
+        kf: Keyframe,
+        cells_f: np.ndarray,
+        valid_match_k: np.ndarray,
+        valid_kf: np.ndarray,
+        n_cells: int,
+    ) -> float:
+        """The new-keyframe test's threshold for this frame: ``match_frac_thresh``, or less
+        where the keyframe's first tracked frame already saw little of it.
+
+        The test's overlap (``tracking.keyframe_overlap``) is below 1 even next to the
+        keyframe: pixels whose points fail the matcher's occlusion test (far depth noisier than
+        ``matching.dist_thresh``) or matches that the descriptor refinement pulls onto the same
+        frame pixel (blurred, compressed or low-texture images). Where that first overlap is
+        under the threshold, every frame would become a keyframe. With
+        ``tracking.keyframe_first_ratio`` r > 0 the threshold is ``min(match_frac_thresh,
+        r · overlap_first)``, ``overlap_first`` the overlap of the first frame tracked against
+        ``kf`` (docs/system.md, the RGB-D config; benchmarks/RESULTS.md, "A keyframe's first
+        frame")."""
+        thresh = float(self.tracking_cfg.match_frac_thresh)
+        ratio = self.cfg.keyframe_first_ratio()
+        if ratio <= 0:
+            return thresh
+        key = int(kf.frame.index)
+        if self._first_overlap is None or self._first_overlap[0] != key:
+            first = tracking.keyframe_overlap(cells_f, valid_match_k, valid_kf, n_cells)
+            self._first_overlap = (key, first)
+        return min(thresh, ratio * self._first_overlap[1])
 
     def _match(
         self, p: PairPrediction, grid: np.ndarray, stride: int
