@@ -89,7 +89,15 @@ class AteResult:
             "scale": self.scale,
             "matched": self.matched,
             "n_est": self.n_est,
+            "reference_spread": self.reference_spread,
         }
+
+    @property
+    def reference_spread(self) -> float:
+        """RMS distance of the associated ground-truth positions from their centroid (metres):
+        how far the path reaches, which bounds how well the alignment's scale is determined."""
+        g = np.asarray(self.gt_positions, np.float64).reshape(-1, 3)
+        return float(np.sqrt(np.mean(np.sum((g - g.mean(0)) ** 2, axis=1)))) if len(g) else 0.0
 
 
 def _stamps(x: Any, name: str) -> FloatArray:

@@ -151,6 +151,20 @@ def test_lost_spans_and_health_report() -> None:
     assert health_report(poses[:2], 2, 2, "mast3r", {"scale": 1565.0})["plausible"]
 
 
+@pytest.mark.parametrize(
+    ("scale", "spread", "flagged"),
+    [(0.89, 0.069, False), (0.89, 0.30, True), (0.2, 0.069, True), (5.0, 0.069, True)],
+)
+def test_a_metric_scale_is_flagged_where_the_path_can_tell_it(scale, spread, flagged) -> None:
+    # ATE 1.77 cm: a scale of 0.89 moves a 6.9 cm path's positions by 0.85 cm (turning on the
+    # spot: not determined), a 30 cm one's by 3.7 cm; a wrong depth unit (x5) shows anywhere.
+    poses = [SimpleNamespace(index=i, status="tracked") for i in range(2)]
+    ate = {"scale": scale, "ate_rmse": 0.0177, "reference_spread": spread}
+    r = health_report(poses, 2, 2, "rgbd", ate)
+    assert r["plausible"] is not flagged
+    assert any("aligned scale" in w for w in r["warnings"]) is flagged
+
+
 def test_console_flags_an_implausible_run(tmp_path, capsys, fast64) -> None:
     out = tmp_path / "out"
     args = ["run", "synthetic:loop:8:48x36", "--out", str(out)]
