@@ -74,7 +74,7 @@ def _scale_shows(ate: dict[str, Any], s: float) -> bool:
     the estimate's positions are off by about ``|1/s - 1|`` times the path's reach
     (``reference_spread``). On a path that barely leaves its centre (a camera turning on the
     spot) a scale of 0.9 changes them less than the noise, and the alignment's scale is not
-    determined (TUM fr1_rpy, RGB-D: spread 6.9 cm, ATE 1.77 cm, scale 0.89, and 1.92 cm with
+    determined (TUM fr1_rpy, RGB-D: spread 6.4 cm, ATE 1.77 cm, scale 0.89, and 1.92 cm with
     the scale held at 1; benchmarks/RESULTS.md, "The aligned scale on a path that turns on
     the spot"). Without ``reference_spread`` every scale out of range counts."""
     spread = ate.get("reference_spread")
