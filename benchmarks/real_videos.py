@@ -48,7 +48,7 @@ from _results import git_rev, table, write_section
 from scipy.spatial.transform import Rotation
 from scoreboard import run_one
 
-from mslam.datasets.readers import read_calibration
+from mslam.datasets.readers import calibration_yaml, read_calibration
 
 #: KITTI odometry camera 0 by image size: fx, fy, cx, cy (sequences 00-02 and 13-21; 03;
 #: 04-12), from the dataset's published calibration.
@@ -86,8 +86,9 @@ def write_tum(folder: Path, frames: Frames, poses: Poses, calib: tuple[int, int,
         q = Rotation.from_matrix(T[:3, :3]).as_quat()
         gt.append(f"{t:.6f} " + " ".join(f"{v:.7f}" for v in (*T[:3, 3], *q)))
     (folder / "groundtruth.txt").write_text("\n".join(gt) + "\n")
-    w, h, K = calib
-    folder.with_suffix(".yaml").write_text(f"width: {w}\nheight: {h}\ncalibration: {K}\n")
+    w, h, (fx, fy, cx, cy) = calib
+    K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+    folder.with_suffix(".yaml").write_text(calibration_yaml(K, w, h))
     return folder
 
 
