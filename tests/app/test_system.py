@@ -209,13 +209,17 @@ def test_rgbd_resolution_presets_are_rgbd_at_their_size():
 
 def test_rgbd_config_is_base_with_documented_changes():
     """``configs/rgbd.yaml`` (docs/system.md): base.yaml except fusion mode, keyframe threshold,
-    dilation rounds, the work budgets, the solve window and the working resolution."""
+    dilation rounds, the work budgets, the solve window, the metric distance error and the
+    working resolution."""
     base, rgbd = load_config(), load_config("rgbd")
     assert rgbd.tracking().match_frac_thresh == 0.5
     assert rgbd.fusion().filtering_mode == "first"
     assert base.fusion().filtering_mode == "weighted_pointmap"
     assert base.tracking().match_frac_thresh == pytest.approx(0.333)
-    assert rgbd.backend() == replace(base.backend(), window_size=16)
+    assert rgbd.backend() == replace(base.backend(), window_size=16, sigma_dist=0.01)
+    assert base.backend().sigma_dist == base.tracking().sigma_dist == 10  # upstream's
+    assert rgbd.tracking().sigma_dist == 0.01
+    assert rgbd.tracking().sigma_depth == base.tracking().sigma_depth
     assert base.backend().window_size >= 1e6  # upstream: the whole graph
     assert rgbd.matching() == replace(base.matching(), dilation_max=2)
     assert rgbd.use_calib == base.use_calib
