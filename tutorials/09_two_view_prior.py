@@ -302,8 +302,10 @@ plt.show()
 # rotation recognised for any focal length, and the full-resolution flow") the RGB-only map
 # scores a chamfer of 10.7 cm with 0.28 % of its points far (6.4 cm once registered by ICP),
 # the RGB-D map 9.8 cm — and 1.2 cm once registered (RESULTS "Colour registered to depth from
-# edges"): the RGB-D map itself is tight, its trajectory alignment is not. How much of that is
-# the alignment alone?
+# edges"): the RGB-D map itself is tight, its trajectory alignment is not (since the RGB-D
+# configuration weighs depth as a 1 cm error, 2026-11-29: 10.8 and 1.0 cm; the same clip
+# re-rendered with exact depth scores 1.7 cm under the trajectory alignment alone, RESULTS
+# "Depth measured in metres"). How much of that is the alignment alone?
 # docs/evaluation.md moves the *true* cloud by the Sim(3) fitted to a noisy copy of the true
 # path: with a drift-shaped trajectory error of 1.6 cm (this clip's RGB-D ATE) a perfect map
 # scores 7.1 cm, because the path is 1.07 m long and only 1 cm thick across its plane, so the
