@@ -7,6 +7,8 @@ synthetic prior, as ``bench_matching.py``), the best of ``--repeat`` round-robin
   argument is copied to the GPU and back) against ``ResidentMatcher.match`` (the keyframe's
   descriptors ``D21`` kept on the device; the frame's X11, X21, D11 uploaded per call; idx and
   valid downloaded), and the fused kernel alone on device copies (``ti.sync()`` after it);
+* the parts of a matching call around the kernel, each alone: the host checks and conversion
+  of its arrays, the upload of the frame's three arrays, the download of ``idx`` and ``valid``;
 * fusion (``weighted_pointmap``): ``mslam_fast.fusion.update_pointmap`` against
   ``ResidentFusion.update_pointmap`` (the fused pointmap kept on the device between frames).
 
@@ -36,6 +38,12 @@ from mslam_ref.matching import MatchingConfig
 SIZES = [(512, 384), (224, 160)]
 
 
+def _sync() -> None:
+    import taichi as ti
+
+    ti.sync()
+
+
 def rows_for(W: int, H: int, repeat: int) -> list[list[str]]:
     from mslam_fast import fusion, matching, resident
 
@@ -45,7 +53,14 @@ def rows_for(W: int, H: int, repeat: int) -> list[list[str]]:
     matcher = resident.ResidentMatcher()
     a, b = matching.match(X11, X21, D11, D21), matcher.match(X11, X21, D11, D21)
     assert all(np.array_equal(x, y) for x, y in zip(a, b, strict=True)), "results differ"
-    kernel, _ = kernel_only(matching, X11, X21, D11, D21, cfg)
+    kernel, (d_idx, d_valid) = kernel_only(matching, X11, X21, D11, D21, cfg)
+    args, _ = matching._match_args(X11, X21, D11, D21, None, cfg)
+
+    def upload() -> None:
+        for i in (0, 1, 2):
+            resident.to_device(args[i], "bench.frame")
+        _sync()
+
     fcfg = ref_fusion.FusionConfig("weighted_pointmap")
     X, C = X21.reshape(-1, 3), np.full(H * W, 2.0)
     state = {"numpy": ref_fusion.init_pointmap(X, C, fcfg)}
@@ -59,6 +74,11 @@ def rows_for(W: int, H: int, repeat: int) -> list[list[str]]:
         "match (NumPy entry)": lambda: matching.match(X11, X21, D11, D21),
         "ResidentMatcher.match": lambda: matcher.match(X11, X21, D11, D21),
         "matching kernel only": kernel,
+        "  host checks and conversion of the four arrays": lambda: matching._match_args(
+            X11, X21, D11, D21, None, cfg
+        ),
+        "  upload of the frame's X11, X21, D11": upload,
+        "  download of idx and valid": lambda: (resident.to_host(d_idx), resident.to_host(d_valid)),
         "update_pointmap (NumPy entry)": lambda: fuse("numpy", fusion.update_pointmap),
         "ResidentFusion.update_pointmap": lambda: fuse("resident", fuser.update_pointmap),
     }
