@@ -53,6 +53,7 @@ def test_outputs_exist_and_are_well_formed(run_dir: Path):
     ):
         assert key in s, key
     assert s["frames"] == 14 and s["kernels"] == "fast" and s["prior"] == "synthetic"
+    assert s["prior_metric"] is True  # the synthetic prior declares its pointmaps metric
     assert s["skipped_frames"] == 0 and not s["interrupted"]
     ts, poses = read_tum(run_dir / "trajectory.txt")
     assert len(ts) == s["frames_with_pose"] == 14

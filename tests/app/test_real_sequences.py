@@ -140,15 +140,18 @@ def test_lost_spans_and_health_report() -> None:
     st = ["keyframe", "tracked", "lost", "lost", "relocalised", "rotation", "lost"]
     poses = [SimpleNamespace(index=i, status=s) for i, s in enumerate(st)]
     assert lost_spans(poses) == [[2, 3], [6, 6]]
-    r = health_report(poses, 7, 4, "rgbd", {"scale": 1.0})
+    r = health_report(poses, 7, 4, "rgbd", {"scale": 1.0}, metric=True)
     assert r["relocalised_at"] == [4] and r["frames_posed_fraction"] == pytest.approx(4 / 7)
     assert r["frames_posed_by_rotation"] == 1
     assert not r["plausible"] and "4 of 7 frames" in r["warnings"][0]
-    ok = health_report(poses[:2], 2, 2, "rgbd", {"scale": 1.02})
+    ok = health_report(poses[:2], 2, 2, "rgbd", {"scale": 1.02}, metric=True)
     assert ok["plausible"]
-    bad_scale = health_report(poses[:2], 2, 2, "rgbd", {"scale": 1565.0})
+    bad_scale = health_report(poses[:2], 2, 2, "rgbd", {"scale": 1565.0}, metric=True)
     assert not bad_scale["plausible"] and "scale" in bad_scale["warnings"][0]
-    assert health_report(poses[:2], 2, 2, "mast3r", {"scale": 1565.0})["plausible"]
+    assert health_report(poses[:2], 2, 2, "mast3r", {"scale": 1565.0}, metric=False)["plausible"]
+    # The flag, not the name, decides: a metric prior of any name has its scale checked.
+    mine = health_report(poses[:2], 2, 2, "my_depth_prior", {"scale": 1565.0}, metric=True)
+    assert not mine["plausible"] and "my_depth_prior prior is metric" in mine["warnings"][0]
 
 
 @pytest.mark.parametrize(
@@ -160,7 +163,7 @@ def test_a_metric_scale_is_flagged_where_the_path_can_tell_it(scale, spread, fla
     # spot: not determined), a 30 cm one's by 3.7 cm; a wrong depth unit (x5) shows anywhere.
     poses = [SimpleNamespace(index=i, status="tracked") for i in range(2)]
     ate = {"scale": scale, "ate_rmse": 0.0177, "reference_spread": spread}
-    r = health_report(poses, 2, 2, "rgbd", ate)
+    r = health_report(poses, 2, 2, "rgbd", ate, metric=True)
     assert r["plausible"] is not flagged
     assert any("aligned scale" in w for w in r["warnings"]) is flagged
 

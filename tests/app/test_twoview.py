@@ -262,6 +262,7 @@ def test_cli_runs_an_rgb_image_folder_with_the_twoview_prior(seq, tmp_path, caps
     assert main([*args, "--quiet"]) == 0
     s = json.loads((out / "summary.json").read_text())
     assert s["prior"] == "twoview" and s["frames"] == 6 and not s["calibrated"]
+    assert s["prior_metric"] is False
     assert s["config"]["tracking"]["match_frac_thresh"] == 0.45
     assert s["frames_with_pose"] >= 4
 

@@ -222,11 +222,9 @@ def _print_summary(s: dict, out: Path) -> None:
 
 def _checked(s: dict) -> str:
     """What the plausibility checks covered in this run (``mslam.system.health``)."""
-    from mslam.system.health import METRIC_PRIORS
-
     if "ate_rmse" not in s:
         why = "ATE not computed" if s.get("evaluation_error") else "no ground truth"
         return f"posed fraction checked; scale and accuracy not checked: {why}"
-    if s["prior"] not in METRIC_PRIORS:
+    if not s.get("prior_metric"):
         return f"posed fraction checked; scale not checked: the {s['prior']} prior is not metric"
     return "posed fraction and aligned scale within limits"

@@ -16,11 +16,14 @@ The map's fusion keeps such points out of the exported positions and the export 
 them (``mslam.system.tracker.without_filler``, ``output.C_conf_threshold`` > 1).
 
 A prior whose pointmaps are in metres (made from depth) says so with a class attribute
-``metric = True``; one without the attribute counts as normalised, as MASt3R's are (the spread
-watch reads what can drift accordingly: ``mslam.system.global_opt.Backend.spread_depths``).
+``metric = True``; one without the attribute counts as normalised, as MASt3R's are.
+:func:`is_metric` is the one place that reads it: for the spread watch (what can drift,
+``mslam.system.global_opt.Backend.spread_depths``), and, kept in the run's metadata and
+``summary.json`` as ``prior_metric``, for the aligned-scale check (``mslam.system.health``),
+the console line and the trajectory plot's units.
 
 Public names, in reading order:
-    DESC_DIM, NO_INFO_C, PairPrediction, Prior, check_prediction
+    DESC_DIM, NO_INFO_C, PairPrediction, Prior, is_metric, check_prediction
 """
 
 from __future__ import annotations
@@ -33,7 +36,7 @@ import numpy as np
 from mslam.datasets.frame import Frame
 from mslam_ref.conventions import FloatArray
 
-__all__ = ["DESC_DIM", "NO_INFO_C", "PairPrediction", "Prior", "check_prediction"]
+__all__ = ["DESC_DIM", "NO_INFO_C", "PairPrediction", "Prior", "check_prediction", "is_metric"]
 
 #: MASt3R's descriptor dimension F (``output_mode='pts3d+desc24'``).
 DESC_DIM = 24
@@ -95,6 +98,12 @@ class Prior(Protocol):
     def pair(self, frame_i: Frame, frame_j: Frame) -> PairPrediction:
         """Both pointmaps, confidences and descriptors of (i, j) in camera i."""
         ...
+
+
+def is_metric(prior: object) -> bool:
+    """Whether ``prior``'s pointmaps are in metres: its class attribute ``metric``, False when
+    absent (a wrapper such as ``mslam.system.worker.SharedPrior`` passes it through)."""
+    return bool(getattr(prior, "metric", False))
 
 
 def check_prediction(pred: PairPrediction, desc_dim: int = DESC_DIM, atol: float = 1e-5) -> None:

@@ -39,7 +39,7 @@ import numpy as np
 from mslam.config import SlamConfig
 from mslam.datasets.frame import Frame
 from mslam.kernels import KernelSet
-from mslam.priors.base import Prior
+from mslam.priors.base import Prior, is_metric
 from mslam.system.divergence import DivergenceMonitor, guard_backend
 from mslam.system.edges import Edge, EdgeBuilder, KnownPairs
 from mslam.system.graph import FactorGraph
@@ -187,7 +187,7 @@ class Backend:
         keyframe's points already measure the scene, which changes when the camera turns
         towards farther surfaces; only the scale ``s_k`` can drift (benchmarks/RESULTS.md,
         "The spread watch with depth")."""
-        return None if getattr(self.prior, "metric", False) else self.keyframe_depths(n)
+        return None if is_metric(self.prior) else self.keyframe_depths(n)
 
     def keyframe_depths(self, n: int) -> FloatArray:
         """(n,) median distance of the canonical points of the last ``n`` keyframes to their

@@ -12,13 +12,15 @@ in ``summary.json`` and on the console:
 * ``warnings``: one sentence per reason to distrust the run, and ``plausible`` (no warning).
 
 A run is flagged when fewer than :data:`MIN_POSED_FRACTION` of its frames have a pose, when
-the prior is metric (depth-based: ``rgbd``, ``synthetic``) but the aligned Sim(3) scale is
+the prior is metric (its pointmaps are in metres: the class says so, ``metric = True``, read by
+:func:`mslam.priors.base.is_metric` and kept in ``summary.json`` as ``prior_metric``) but the
+aligned Sim(3) scale is
 outside ``[1 / MAX_SCALE_FACTOR, MAX_SCALE_FACTOR]`` by more than the path can tell (the scale
 error moves positions by more than the ATE), and when ``--skip-bad-frames`` skipped
 frames (:func:`skip_warnings`: they are in no count and have no pose).
 
 Public names, in reading order:
-    MIN_POSED_FRACTION, MAX_SCALE_FACTOR, METRIC_PRIORS, lost_spans, relocalised_at,
+    MIN_POSED_FRACTION, MAX_SCALE_FACTOR, lost_spans, relocalised_at,
     health_report, skip_warnings
 """
 
@@ -28,7 +30,6 @@ from typing import Any
 
 __all__ = [
     "MAX_SCALE_FACTOR",
-    "METRIC_PRIORS",
     "MIN_POSED_FRACTION",
     "health_report",
     "lost_spans",
@@ -41,9 +42,6 @@ MIN_POSED_FRACTION = 0.95
 
 #: With a metric prior, an aligned scale beyond this factor (either way) is flagged.
 MAX_SCALE_FACTOR = 1.1
-
-#: Priors whose pointmaps are metric (made from depth), so the aligned scale should be ~1.
-METRIC_PRIORS = ("rgbd", "synthetic")
 
 
 def lost_spans(poses: list[Any]) -> list[list[int]]:
@@ -84,13 +82,20 @@ def _scale_shows(ate: dict[str, Any], s: float) -> bool:
 
 
 def health_report(
-    poses: list[Any], frames: int, posed: int, prior: str | None, ate: dict[str, Any] | None
+    poses: list[Any],
+    frames: int,
+    posed: int,
+    prior: str | None,
+    ate: dict[str, Any] | None,
+    *,
+    metric: bool,
 ) -> dict[str, Any]:
     """The trust fields of ``summary.json`` (module docstring).
 
     Args:
         poses: per-frame records; frames: frames read; posed: frames with a pose;
         prior: the prior's name; ate: ``AteResult.to_dict()`` of the run, or None.
+        metric: the prior's pointmaps are in metres (``mslam.priors.base.is_metric``).
 
     Returns:
         ``frames_posed_fraction``, ``lost_spans``, ``relocalised_at``,
@@ -103,7 +108,7 @@ def health_report(
             f"only {posed} of {frames} frames ({100 * frac:.0f}%) have a pose "
             f"(< {100 * MIN_POSED_FRACTION:.0f}%); the ATE covers those frames only"
         )
-    if ate is not None and prior in METRIC_PRIORS:
+    if ate is not None and metric:
         s = float(ate.get("scale", 1.0))
         if not (1.0 / MAX_SCALE_FACTOR <= s <= MAX_SCALE_FACTOR) and _scale_shows(ate, s):
             warnings.append(

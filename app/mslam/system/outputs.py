@@ -178,6 +178,7 @@ def summary_dict(system: SlamSystem, meta: dict[str, Any], ev: dict[str, Any]) -
         "stage_seconds": {k: round(v, 4) for k, v in sorted(st.seconds.items())},
         "kernels": system.kernels.name,
         "prior": meta.get("prior"),
+        "prior_metric": bool(meta.get("prior_metric", False)),
         "device": meta.get("device", "cpu"),
         "calibrated": system.K is not None,
         "resolution": list(system.keyframes[0].shape[::-1]) if len(system.keyframes) else None,
@@ -190,7 +191,14 @@ def summary_dict(system: SlamSystem, meta: dict[str, Any], ev: dict[str, Any]) -
     from mslam.system.health import health_report, skip_warnings
 
     out.update(
-        health_report(system.poses, frames, out["frames_with_pose"], out["prior"], ev.get("ate"))
+        health_report(
+            system.poses,
+            frames,
+            out["frames_with_pose"],
+            out["prior"],
+            ev.get("ate"),
+            metric=out["prior_metric"],
+        )
     )
     maps = system.recovery.report(system.poses, len(system.keyframes))  # mslam.system.recovery
     out["maps"] = maps["maps"]
@@ -224,7 +232,7 @@ def plot_trajectory(
     """PNG bytes: top view and the position error over time, both panels labelled.
 
     Axes are in metres when the estimate is aligned to ground truth or ``metric`` (a depth-based
-    prior, ``mslam.system.health.METRIC_PRIORS``), else in "arbitrary units" (RGB-only priors
+    prior, ``mslam.priors.base.is_metric``), else in "arbitrary units" (RGB-only priors
     fix the scale only up to a factor).
 
     Top view (the plane of the two largest principal directions of the ground truth, else of
@@ -359,9 +367,7 @@ def write_outputs(
     ev = evaluate_run(system, sequence)
     summary = summary_dict(system, meta, ev)
     base = (meta.get("baseline") or {}).get("_result")
-    from mslam.system.health import METRIC_PRIORS
-
-    metric = meta.get("prior") in METRIC_PRIORS
+    metric = bool(meta.get("prior_metric", False))
     png = plot_trajectory(system, ev, str(meta.get("source", "")), base, metric)
     text = json.dumps(_finite(summary), indent=2, default=_json_default, allow_nan=False) + "\n"
     out_dir.mkdir(parents=True, exist_ok=True)

@@ -21,6 +21,7 @@ import cv2
 from mslam.config import SlamConfig
 from mslam.datasets.frame import Frame, check_frame_size
 from mslam.kernels import KernelSet
+from mslam.priors.base import is_metric
 from mslam.system.frontend import SlamSystem
 from mslam.system.sources import Source, self_calibrate
 from mslam.system.state import FrameStatus, Mode
@@ -129,6 +130,7 @@ def run_slam(
     meta = {
         "source": source.name,
         "prior": source.prior_name,
+        "prior_metric": is_metric(source.prior),
         "seconds": seconds,
         "interrupted": interrupted,
         "skipped": skipped,
