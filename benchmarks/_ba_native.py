@@ -14,6 +14,7 @@ from __future__ import annotations
 import json
 import shutil
 import subprocess
+import tempfile
 import time
 from pathlib import Path
 
@@ -45,49 +46,44 @@ def run_ceres(binary: Path, bal_file: Path, iterations: int, threads: int = 2) -
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
-def _g2o_graph(problem):
+def _g2o_graph(problem, work: Path):
+    """The g2o graph of ``problem``, loaded by g2o's own reader from a file written into
+    ``work`` by ``mslam.g2o_ba.format_g2o_ba`` (the seed's format), then the poses set through
+    the bindings (world to camera: g2o versions read the file's pose in either direction) and
+    the points marked for marginalisation. Built through the bindings vertex by vertex and edge by edge instead,
+    a KITTI-00-sized graph does not finish: ``add_edge`` costs ~2 ms per call there, growing
+    with the graph (2026-11-29: 100,000 edges in 438 s)."""
     import g2opy as g2o
+
+    from mslam.g2o_ba import format_g2o_ba
 
     opt = g2o.SparseOptimizer()
     solver = g2o.BlockSolverSE3(g2o.LinearSolverEigenSE3())
     algorithm = g2o.OptimizationAlgorithmLevenberg(solver)
     opt.set_algorithm(algorithm)
-    fx, _fy, cx, cy, _ = problem.intrinsics[0]  # EdgeProjectXYZ2UV: one focal length
-    cam = g2o.CameraParameters(float(fx), np.array([cx, cy], float), 0.0)
-    cam.set_id(0)
-    opt.add_parameter(cam)
-    M, alive = len(problem.poses), [solver, algorithm, cam]  # the bindings do not own these
-    for i, T in enumerate(problem.poses):
-        v = g2o.VertexSE3Expmap()
-        v.set_id(i)
+    M, P = len(problem.poses), len(problem.points)
+    ids = {"poses": list(range(M)), "points": list(range(M, M + P))}
+    path = work / "problem.g2o"
+    path.write_text(format_g2o_ba(problem, ids).replace("VERTEX_SBAPOINTXYZ", "VERTEX_TRACKXYZ"))
+    if (
+        not opt.load(str(path))
+        or len(opt.vertices()) != M + P
+        or len(opt.edges()) != len(problem.obs_cam)
+    ):
+        raise RuntimeError(f"g2o did not load {path} whole")
+    for i, T in enumerate(problem.poses):  # g2o's readers differ on the pose's direction
         R = np.asfortranarray(so3.to_matrix(np.asarray(T[3:], float)))
-        v.set_estimate(g2o.SE3Quat(R, np.asarray(T[:3], float)))
-        v.set_fixed(bool(problem.pose_fixed[i]))
-        opt.add_vertex(v)
-        alive.append(v)
-    for j, X in enumerate(problem.points):
-        v = g2o.VertexPointXYZ()
-        v.set_id(M + j)
-        v.set_estimate(np.asarray(X, float))
-        v.set_marginalized(True)
-        opt.add_vertex(v)
-        alive.append(v)
-    for e in range(len(problem.obs_cam)):
-        edge = g2o.EdgeProjectXYZ2UV()
-        edge.set_vertex(0, opt.vertex(M + int(problem.obs_pt[e])))
-        edge.set_vertex(1, opt.vertex(int(problem.obs_cam[e])))
-        edge.set_measurement(np.asarray(problem.meas[e, :2], float))
-        edge.set_information(np.eye(2) * float(problem.information[e]))
-        edge.set_parameter_id(0, 0)
-        opt.add_edge(edge)
-        alive.append(edge)
-    return opt, alive
+        opt.vertex(i).set_estimate(g2o.SE3Quat(R, np.asarray(T[:3], float)))
+    for v in ids["points"]:
+        opt.vertex(v).set_marginalized(True)
+    return opt, [solver, algorithm]  # the bindings do not own these
 
 
 def run_g2o(problem, iterations: int) -> dict:
     """g2o LM on a monocular ``PinholeProblem`` with one camera: time of ``optimize`` only,
     and the cost ``chi2 / 2`` before and after."""
-    opt, _alive = _g2o_graph(problem)
+    with tempfile.TemporaryDirectory() as work:
+        opt, _alive = _g2o_graph(problem, Path(work))
     opt.initialize_optimization()
     opt.compute_active_errors()
     c0 = 0.5 * opt.active_chi2()
