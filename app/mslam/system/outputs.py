@@ -190,16 +190,8 @@ def summary_dict(system: SlamSystem, meta: dict[str, Any], ev: dict[str, Any]) -
     from mslam.system.divergence import divergence_report
     from mslam.system.health import health_report, skip_warnings
 
-    out.update(
-        health_report(
-            system.poses,
-            frames,
-            out["frames_with_pose"],
-            out["prior"],
-            ev.get("ate"),
-            metric=out["prior_metric"],
-        )
-    )
+    posed, ate, metric = out["frames_with_pose"], ev.get("ate"), out["prior_metric"]
+    out.update(health_report(system.poses, frames, posed, out["prior"], ate, metric=metric))
     maps = system.recovery.report(system.poses, len(system.keyframes))  # mslam.system.recovery
     out["maps"] = maps["maps"]
     warnings = [*out["warnings"], *maps["warnings"], *skip_warnings(meta)]
