@@ -50,9 +50,9 @@ def _g2o_graph(problem, work: Path):
     """The g2o graph of ``problem``, loaded by g2o's own reader from a file written into
     ``work`` by ``mslam.g2o_ba.format_g2o_ba`` (the seed's format), then the poses set through
     the bindings (world to camera: g2o versions read the file's pose in either direction) and
-    the points marked for marginalisation. Built through the bindings vertex by vertex and edge by edge instead,
-    a KITTI-00-sized graph does not finish: ``add_edge`` costs ~2 ms per call there, growing
-    with the graph (2026-11-29: 100,000 edges in 438 s)."""
+    the points marked for marginalisation. Built through the bindings vertex by vertex and
+    edge by edge instead, a KITTI-00-sized graph does not finish: ``add_edge`` costs ~2 ms per
+    call there, growing with the graph (2026-11-29: 100,000 edges in 438 s)."""
     import g2opy as g2o
 
     from mslam.g2o_ba import format_g2o_ba

@@ -26,7 +26,8 @@ repack() {
   "$PY" - "$@" <<'PY'
 import os, subprocess, sys, tempfile, zipfile
 src, dst, drop, strip = sys.argv[1], sys.argv[2], sys.argv[3].split(","), sys.argv[4]
-with zipfile.ZipFile(src) as zin, zipfile.ZipFile(dst, "w", zipfile.ZIP_DEFLATED, compresslevel=9) as zout:
+out = zipfile.ZipFile(dst, "w", zipfile.ZIP_DEFLATED, compresslevel=9)
+with zipfile.ZipFile(src) as zin, out as zout:
     for info in zin.infolist():
         if any(d and d in info.filename for d in drop):
             continue
