@@ -100,12 +100,12 @@ def test_plausible_line_says_what_was_not_checked(twoview_run):
 def test_plausible_line_names_the_checks_that_ran():
     from mslam.commands.run import _checked
 
-    with_gt = {"ate_rmse": 0.01, "prior": "rgbd"}
+    with_gt = {"ate_rmse": 0.01, "prior": "rgbd", "prior_metric": True}
     assert _checked(with_gt) == "posed fraction and aligned scale within limits"
     assert "scale not checked: the twoview prior is not metric" in _checked(
-        {**with_gt, "prior": "twoview"}
+        {**with_gt, "prior": "twoview", "prior_metric": False}
     )
-    assert "no ground truth" in _checked({"prior": "rgbd"})
+    assert "no ground truth" in _checked({"prior": "rgbd", "prior_metric": True})
 
 
 @pytest.mark.parametrize(
