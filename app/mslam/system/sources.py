@@ -117,7 +117,10 @@ def open_source(
             raise ValueError(
                 f"{calib}: calibration is for {cal.width}x{cal.height} but the images are {W}x{H}"
             )
-        seq.K = cal.K
+        if synthetic or seq.K is None:
+            # The file loaders apply --calib themselves: with distortion terms the frames are
+            # undistorted into the new camera matrix (K_opt), which is the one the run must use.
+            seq.K = cal.K
     use_calib = cfg.use_calib or cal is not None
     if use_calib and seq.K is None:
         raise ValueError(
