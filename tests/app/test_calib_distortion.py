@@ -48,15 +48,9 @@ def test_a_distorted_calibration_runs_on_the_undistorted_frames_intrinsics(tmp_p
     K_file = np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]])
     K_opt = optimal_intrinsics(K_file, np.array(DIST), W, H, True)
     assert src.K is not None and src.sequence.K is not None
-    np.testing.assert_allclose(src.K, K_opt, rtol=1e-12)
-    np.testing.assert_allclose(src.sequence.K, K_opt, rtol=1e-12)
+    np.testing.assert_array_equal(src.K, K_opt)
+    np.testing.assert_array_equal(src.sequence.K, K_opt)
     assert abs(K_opt[0, 0] / fx - 1) > 0.05  # the lens matters: not the file's K
-    # A point seen at a raw pixel appears, in the loaded (undistorted) frame, where src.K says.
-    raw = np.array([[[8.0, 6.0]], [[55.0, 40.0]]])
-    ray = cv2.undistortPoints(raw, K_file, np.array(DIST)).reshape(-1, 2)
-    shown = ray @ src.K[:2, :2].T + src.K[:2, 2]
-    expect = cv2.undistortPoints(raw, K_file, np.array(DIST), P=K_opt).reshape(-1, 2)
-    np.testing.assert_allclose(shown, expect, atol=1e-9)
 
 
 def test_a_calibration_without_distortion_keeps_its_own_intrinsics(tmp_path):
