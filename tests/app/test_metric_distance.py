@@ -15,6 +15,7 @@ import pytest
 
 from mslam.config import load_config
 from mslam.kernels import load_kernels
+from mslam.priors.base import is_metric
 from mslam.system import open_source, run_slam
 from mslam.system.outputs import evaluate_run, summary_dict
 
@@ -28,7 +29,7 @@ def _ate(sigma_dist: float) -> float:
     keys = [f"tracking.sigma_dist={sigma_dist}", f"local_opt.sigma_dist={sigma_dist}"]
     cfg = load_config(None, keys)
     src = open_source(LOOP, cfg)
-    assert getattr(src.prior, "metric", False)  # the synthetic prior's pointmaps are in metres
+    assert is_metric(src.prior)  # the synthetic prior's pointmaps are in metres
     system, meta = run_slam(src, cfg, load_kernels("fast"))
     s = summary_dict(system, meta, evaluate_run(system, src.sequence))
     assert s["frames_with_pose"] == s["frames"] and s["plausible"]
