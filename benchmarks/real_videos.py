@@ -28,7 +28,8 @@ the fair measure). KITTI's intrinsics come from its odometry calibration by imag
 ``line`` folder's ``calib.txt`` is the drone's).
 
 Usage: ``python benchmarks/real_videos.py WORK [--yacynte DIR] [--benchun DIR] [--tum DIR ...]
-[--variants] [--jobs 2] [--no-write]``; writes the section ``real-videos`` of RESULTS.md
+[--variants] [--jobs 2] [--no-write] [--reuse]``; ``--reuse`` keeps the runs that already
+have a ``summary.json`` (a table after a change that moves no trajectory); writes the section ``real-videos`` of RESULTS.md
 unless ``--no-write``. About 20 min with all three sources and ``--variants`` on 2 cores
 (2026-11-29).
 """
@@ -63,7 +64,7 @@ FREIBURG3 = [535.4, 539.2, 320.1, 247.6]
 R_BODY_CAMERA = np.diag([-1.0, -1.0, 1.0])
 
 HEADER = ["input", "run", "frames", "posed %", "ATE", "% of path", "keyframes", "frames/s",
-          "plausible", "warnings"]  # fmt: skip
+          "plausible", "spread watch", "warnings"]  # fmt: skip
 
 Frames = list[tuple[float, Path]]
 Poses = list[tuple[float, np.ndarray]]
@@ -185,7 +186,7 @@ def row(name: str, mode: str, run: Path) -> list[object]:
     if not (run / "summary.json").exists():
         err = run.parent / f"{run.name}.err"
         why = err.read_text().strip().splitlines()[0] if err.exists() else "no summary.json"
-        return [name, mode, "–", "–", "–", "–", "–", "–", "failed", why[:80]]
+        return [name, mode, "–", "–", "–", "–", "–", "–", "failed", "–", why[:80]]
     s = video_variants.read_summary(run)
     ate = s.get("ate_rmse")
     ate_text = "–" if ate is None else (f"{100 * ate:.2f} cm" if ate < 1 else f"{ate:.2f} m")
@@ -193,7 +194,8 @@ def row(name: str, mode: str, run: Path) -> list[object]:
     warnings = "; ".join(w[:60] for w in s["warnings"]) or "–"
     return [name, mode, s["frames"], f"{s['posed_pct']:.1f}", ate_text,
             "–" if pct is None else f"{pct:.1f}", s["keyframes"],
-            f"{s['frames_per_second']:.2f}", s["plausible"], warnings]  # fmt: skip
+            f"{s['frames_per_second']:.2f}", s["plausible"], video_variants.spread_text(s),
+            warnings]  # fmt: skip
 
 
 def build(args: argparse.Namespace) -> list[Path]:
@@ -220,6 +222,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--variants", action="store_true", help="also backwards and every 2nd")
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--no-write", action="store_true")
+    ap.add_argument("--reuse", action="store_true",
+                    help="keep runs that already have a summary.json in WORK/runs")  # fmt: skip
     args = ap.parse_args(argv)
     for opt in ("yacynte", "benchun"):
         if getattr(args, opt) and not getattr(args, opt).is_dir():
@@ -239,9 +243,14 @@ def main(argv: list[str] | None = None) -> int:
         cal = ["--calib", str(yaml)] if yaml.is_file() else []
         jobs[f"{folder.name}_cal"] = (folder.name, "calibrated", [str(folder), *cal, "--set",
                                       "use_calib=true"])  # fmt: skip
+
+    def run(key: str, argv: list[str]) -> Path:
+        done = args.work / "runs" / key
+        return done if args.reuse and (done / "summary.json").is_file() else run_one(
+            args.work, key, argv)  # fmt: skip
+
     with ThreadPoolExecutor(args.jobs) as pool:
-        runs = dict(zip(jobs, pool.map(lambda kv: run_one(args.work, kv[0], kv[1][2]),
-                                       jobs.items())))  # fmt: skip
+        runs = dict(zip(jobs, pool.map(lambda kv: run(kv[0], kv[1][2]), jobs.items())))
     rows = [row(name, mode, runs[key]) for key, (name, mode, _) in jobs.items()]
     body = (
         f"`python benchmarks/real_videos.py` at {git_rev()}: `mslam run SOURCE --prior twoview` "

@@ -53,7 +53,8 @@ RENDER_FOV, RENDER_SIZE = 55.0, (320, 240)
 
 #: Columns of the RESULTS table.
 HEADER = ["input", "frames", "posed %", "ATE [cm]", "keyframes", "frames/s", "plausible",
-          "maps", "map chamfer: traj. / ICP [cm]", "warnings", "trajectory"]  # fmt: skip
+          "maps", "map chamfer: traj. / ICP [cm]", "spread watch", "warnings",
+          "trajectory"]  # fmt: skip
 
 
 def inputs(
@@ -139,13 +140,13 @@ def row(name: str, run: Path, chamfer: str) -> list[object]:
     if not (run / "summary.json").exists():
         err_file = run.parent / f"{run.name}.err"
         err = err_file.read_text().strip() if err_file.exists() else "no summary.json"
-        return [name, "–", "–", "–", "–", "–", "failed", "–", "–", err[:80], "–"]
+        return [name, "–", "–", "–", "–", "–", "failed", "–", "–", "–", err[:80], "–"]
     s = video_variants.read_summary(run)
     md5 = hashlib.md5((run / "trajectory.txt").read_bytes()).hexdigest()[:8]
     warnings = "; ".join(w[:70] for w in s["warnings"]) or "–"
     return [name, s["frames"], f"{s['posed_pct']:.1f}", s["ate_cm"], s["keyframes"],
             f"{s['frames_per_second']:.2f}", s["plausible"], hard_variants.maps_text(s),
-            chamfer, warnings, f"`{md5}`"]  # fmt: skip
+            chamfer, video_variants.spread_text(s), warnings, f"`{md5}`"]  # fmt: skip
 
 
 def main(argv: list[str] | None = None) -> int:

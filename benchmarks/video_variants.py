@@ -150,6 +150,25 @@ def read_summary(run: Path) -> dict[str, object]:
     return {**s, "posed_pct": posed_pct, "ate_cm": "-" if ate is None else f"{100 * ate:.2f}"}
 
 
+def spread_text(s: dict) -> str:
+    """The spread watch's events of a summary, for a table cell: ``caution ×2.17 (frame 333,
+    up to ×3.1)`` per event (``runaway`` for one that made the run implausible), or ``–``."""
+    import re
+
+    cells = []
+    for e in s.get("divergence_events", []):
+        if e.get("kind") != "spread":
+            continue
+        factor = e.get("factor")
+        if factor is None:  # a summary written before events carried their factor
+            found = re.search(r"(?:factor|spacing is) ([0-9.e+]+)", e["reason"])
+            factor = float(found.group(1)) if found else float("nan")
+        largest = e.get("largest_factor", factor)
+        more = f", up to ×{largest:.3g}" if largest > factor else ""
+        cells.append(f"{e.get('severity', 'spread')} ×{factor:.3g} (frame {e['frame']}{more})")
+    return "; ".join(cells) or "–"
+
+
 def table_row(run: Path) -> str:
     """One line of a run's ``summary.json``."""
     s = read_summary(run)

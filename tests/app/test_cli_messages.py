@@ -108,6 +108,21 @@ def test_plausible_line_names_the_checks_that_ran():
     assert "no ground truth" in _checked({"prior": "rgbd", "prior_metric": True})
 
 
+def test_a_caution_is_printed_and_keeps_the_plausible_line(tmp_path, capsys):
+    from mslam.commands.run import _print_summary
+
+    s = {"source": "x", "prior": "twoview", "prior_metric": False, "kernels": "fast",
+         "calibrated": False, "frames": 10, "frames_with_pose": 10, "frames_posed_fraction": 1.0,
+         "lost_frames": 0, "skipped_frames": 0, "lost_spans": [], "relocalised_at": [],
+         "relocalisations": 0, "reloc_attempts": 0, "keyframes": 9, "edges": 8,
+         "loop_closure_edges": 0, "seconds": 1.0, "frames_per_second": 10.0, "warnings": [],
+         "cautions": ["the map's scale moved (at frame 7): ..."]}  # fmt: skip
+    _print_summary(s, tmp_path)
+    err = capsys.readouterr().err
+    assert "  caution: the map's scale moved (at frame 7)" in err
+    assert "plausible: no warning" in err and "WARNING" not in err
+
+
 @pytest.mark.parametrize(
     "key, suggestion",
     [("tracking.Qconf", "tracking.Q_conf"), ("trackin.Q_conf", "tracking.Q_conf")],

@@ -1,5 +1,6 @@
 """The spread watch on keyframe scales that drift unevenly (``map_spread``,
-``DivergenceConfig.max_uneven_drift``).
+``DivergenceConfig.max_uneven_drift``), and how severe a drift is (``DivergenceMonitor.severity``,
+``DivergenceConfig.max_confounded_drift``).
 
 A monocular map whose Sim(3) scale shrinks by a large factor in uneven steps (sensor noise at
 the working resolution: some keyframes shrink a lot, some recover a little) is a drift even
@@ -10,8 +11,14 @@ prior's scale shrinks just as much but in step with the distance walked, is not.
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
-from mslam.system.divergence import DivergenceConfig, map_spread
+from mslam.system.divergence import (
+    DivergenceConfig,
+    DivergenceMonitor,
+    divergence_report,
+    map_spread,
+)
 
 CFG = DivergenceConfig()
 N_KF = CFG.spread_window + 3  # keyframes: more than one window
@@ -93,3 +100,49 @@ def test_a_pointmap_scale_change_that_leaves_the_scene_distance_is_not_flagged()
     assert map_spread(T, CFG, 1.0 / scales) is None
     # The same scales over pointmaps of one scale move the scene: a drift.
     assert "scale grew" in map_spread(T, CFG, np.ones(N_KF))
+
+
+def _sideways_drift(factor: float) -> np.ndarray:
+    """Keyframes moving sideways (never towards the scene) whose scale shrinks steadily by
+    ``factor`` over the watch's window."""
+    log_s = np.linspace(0.0, -np.log(factor) * (N_KF - 1) / CFG.spread_window, N_KF)
+    return _poses(np.outer(np.arange(N_KF), [0.1, 0.0, 0.0]), np.exp(log_s))
+
+
+def test_a_normalised_prior_s_drift_is_a_caution_up_to_the_confounded_factor() -> None:
+    # The world scale read with the points' distances also moves with the scene's distance:
+    # a factor between the watch's and the confounded factor is reported, not warned about.
+    factor = np.sqrt(CFG.max_scale_drift * CFG.max_confounded_drift)
+    T = _sideways_drift(factor)
+    assert _window_stats(T)[0] == pytest.approx(factor)
+    mon = DivergenceMonitor()
+    assert not mon.check_map(40, T, np.ones(N_KF))
+    assert mon.warnings() == []
+    assert len(mon.cautions()) == 1 and "at frame 40" in mon.cautions()[0]
+    (event,) = mon.events
+    assert event["severity"] == "caution" and event["factor"] == pytest.approx(factor)
+    report = divergence_report(mon, [], T, [])
+    assert report["plausible"] and report["cautions"] == mon.cautions()
+    # Seen again in the same map: no second event, the largest factor kept; in a new map:
+    # reported again.
+    mon.check_map(41, _sideways_drift(1.5 * factor), np.ones(N_KF))
+    assert len(mon.events) == 1
+    assert event["factor"] == pytest.approx(factor)
+    assert event["largest_factor"] == pytest.approx(1.5 * factor)
+    mon.new_map()
+    mon.check_map(42, T, np.ones(N_KF))
+    assert len(mon.events) == 2
+
+
+def test_a_drift_beyond_the_confounded_factor_or_of_a_metric_prior_is_a_runaway() -> None:
+    beyond = _sideways_drift(2 * CFG.max_confounded_drift)
+    mon = DivergenceMonitor()
+    mon.check_map(40, _sideways_drift(np.sqrt(CFG.max_confounded_drift)), np.ones(N_KF))
+    mon.check_map(50, beyond, np.ones(N_KF))  # after a caution, the runaway is still reported
+    assert [e["severity"] for e in mon.events] == ["caution", "runaway"]
+    assert len(mon.warnings()) == 1 and "the map runs away (at frame 50)" in mon.warnings()[0]
+    assert not divergence_report(mon, [], beyond, [])["plausible"]
+    # A metric prior's Sim(3) scales have no scene distance in them: any drift is a runaway.
+    metric = DivergenceMonitor()
+    metric.check_map(40, _sideways_drift(np.sqrt(CFG.max_confounded_drift)), None)
+    assert [e["severity"] for e in metric.events] == ["runaway"] and metric.cautions() == []

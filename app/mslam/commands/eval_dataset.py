@@ -177,6 +177,7 @@ def results_rows(results: list[tuple[str, dict | None, str]]) -> list[dict[str, 
                 scale=(s.get("ate") or {}).get("scale"),
                 rotation_gain=(s.get("rotation") or {}).get("rotation_gain"),
                 warnings=len(s.get("warnings", [])),
+                cautions=len(s.get("cautions", [])),
             )
             r.update((k, (s.get("map") or {}).get(k)) for k in MAP_KEYS)
         rows.append(r)
@@ -189,7 +190,7 @@ def results_rows(results: list[tuple[str, dict | None, str]]) -> list[dict[str, 
 
 
 COLUMNS = ("sequence", "ate_rmse_m", "ate_frames", *MAP_KEYS, "frames_posed", "frames",
-           "keyframes", "fps", "scale", "rotation_gain", "warnings", "status")  # fmt: skip
+           "keyframes", "fps", "scale", "rotation_gain", "warnings", "cautions", "status")  # fmt: skip
 
 
 def _fmt(v: Any, key: str) -> str:

@@ -212,6 +212,8 @@ def _print_summary(s: dict, out: Path) -> None:
         lines.append(f"  {s['evaluation_error']}")
     for w in s["warnings"]:
         lines.append(f"  WARNING: {w}")
+    for c in s.get("cautions", []):
+        lines.append(f"  caution: {c}")
     if not s["warnings"]:
         lines.append(f"  plausible: no warning ({_checked(s)})")
     if s.get("interrupted"):

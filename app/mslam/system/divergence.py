@@ -17,9 +17,14 @@ never against a number of metres:
 the frontend then treats the frame as lost (relocalisation follows), and the monitor keeps a
 record of every refusal (``events``). After every backend step it watches the current map's
 keyframes for a map that spreads without bound while each step looks plausible (``check_map``,
-:func:`map_spread`: a steady Sim(3) scale drift that the keyframes' motion does not explain,
-or keyframe spacing grown far beyond the map's first); that is reported once per map (an event
-and a warning: ``plausible`` is false). :func:`guard_backend` undoes a global solve that does
+:func:`find_spread`: a steady Sim(3) scale drift that the keyframes' motion does not explain,
+or keyframe spacing grown far beyond the map's first). How severe that is
+(:meth:`DivergenceMonitor.severity`) depends on what the watch read: a prior that normalises
+its pointmaps gives a world scale that also moves with the scene's distance, so a drift there
+is a ``"caution"`` (an event and a sentence in the summary's ``cautions``; the run may still be
+plausible) up to ``max_confounded_drift`` and a ``"runaway"`` beyond (an event and a warning:
+``plausible`` is false); keyframe spacing that runs away, and a drift of a metric prior's
+Sim(3) scales, are always runaways. Each severity is reported once per map. :func:`guard_backend` undoes a global solve that does
 not lower its cost or moves a keyframe too far, and :func:`trajectory_warnings` checks the
 final per-frame trajectory the same way (non-finite, jumps, a spread far beyond the path's
 steps), for the summary's ``warnings``; these stateless tests and the thresholds
@@ -28,8 +33,8 @@ here. Each event has a ``kind``: ``"pose"`` (a refused frame pose), ``"solve"`` 
 solve), ``"spread"``.
 
 Public names, in reading order:
-    DivergenceConfig, DivergenceMonitor, guard_backend, map_spread, trajectory_warnings,
-    divergence_report
+    DivergenceConfig, DivergenceMonitor, guard_backend, find_spread, map_spread,
+    trajectory_warnings, divergence_report
 """
 
 from __future__ import annotations
@@ -43,6 +48,8 @@ import numpy as np
 
 from mslam.system.divergence_checks import (
     DivergenceConfig,
+    Spread,
+    find_spread,
     guard_backend,
     map_spread,
     trajectory_warnings,
@@ -52,7 +59,9 @@ from mslam_ref.conventions import FloatArray
 __all__ = [
     "DivergenceConfig",
     "DivergenceMonitor",
+    "Spread",
     "divergence_report",
+    "find_spread",
     "guard_backend",
     "map_spread",
     "trajectory_warnings",
@@ -65,7 +74,9 @@ class DivergenceMonitor:
 
     Attributes:
         cfg: thresholds.
-        events: one dict per refused frame or undone solve (``frame``, ``reason``).
+        events: one dict per refused frame, undone solve or spread (``frame``, ``kind``,
+            ``reason``; a spread also its ``factor``, ``severity`` and the ``largest_factor``
+            seen at that severity in its map).
     """
 
     cfg: DivergenceConfig = field(default_factory=DivergenceConfig)
@@ -76,7 +87,7 @@ class DivergenceMonitor:
         self._lo = np.full(3, np.inf)
         self._hi = np.full(3, -np.inf)
         self._last_scale: float | None = None
-        self._spread_reported = False
+        self._spread_reported: set[str] = set()
 
     def reset(self) -> None:
         """Forget recent motion (after a relocalisation the path restarts elsewhere)."""
@@ -88,24 +99,41 @@ class DivergenceMonitor:
         spread watch may fire again, for the new map."""
         self.reset()
         self._lo, self._hi = np.full(3, np.inf), np.full(3, -np.inf)
-        self._spread_reported = False
+        self._spread_reported = set()
 
     def refused_frames(self) -> list[int]:
         """Frame index of every refused frame pose so far, in order."""
         return [int(e["frame"]) for e in self.events if e["kind"] == "pose"]
 
     def check_map(self, frame: int, T_kf: FloatArray, depth: FloatArray | None = None) -> bool:
-        """:func:`map_spread` on the current map's keyframe poses ``T_kf`` (K, 8) and their
-        canonical points' median distances ``depth`` (K,) after the backend step of the
-        keyframe made at ``frame``; records the first spread of each map. Returns whether the
-        map looks bounded."""
-        why = map_spread(T_kf, self.cfg, depth)
-        if why is None:
+        """:func:`find_spread` on the current map's keyframe poses ``T_kf`` (K, 8) and their
+        canonical points' median distances ``depth`` (K,; None for a metric prior) after the
+        backend step of the keyframe made at ``frame``; records the first spread of each
+        severity in each map (:meth:`severity`). Returns whether the map looks bounded."""
+        found = find_spread(T_kf, self.cfg, depth)
+        if found is None:
             return True
-        if not self._spread_reported:
-            self._spread_reported = True
-            self.events.append({"frame": int(frame), "kind": "spread", "reason": why})
+        severity = self.severity(found, confounded=depth is not None)
+        if severity not in self._spread_reported:
+            self._spread_reported.add(severity)
+            self.events.append({"frame": int(frame), "kind": "spread", "reason": found.reason,
+                                "factor": float(found.factor), "severity": severity,
+                                "largest_factor": float(found.factor)})  # fmt: skip
+        else:  # the same severity again in this map: keep the largest factor seen
+            e = next(e for e in reversed(self.events) if e.get("severity") == severity)
+            e["largest_factor"] = max(e["largest_factor"], float(found.factor))
         return False
+
+    def severity(self, found: Spread, confounded: bool) -> str:
+        """``"runaway"`` (a warning: the run is not plausible) or ``"caution"`` (reported, the
+        run may still be plausible) for a spread :func:`find_spread` found. A world scale read
+        with the points' distances (``confounded``: a prior that normalises its pointmaps)
+        also moves with the scene's distance, so its drift is a runaway only beyond
+        ``max_confounded_drift``; keyframe spacing grown far beyond the map's first, and a
+        drift of the Sim(3) scales alone (a metric prior), always are."""
+        if found.kind != "drift" or not confounded:
+            return "runaway"
+        return "runaway" if found.factor > self.cfg.max_confounded_drift else "caution"
 
     def reason(self, T_WC: FloatArray) -> str | None:
         """Why pose ``T_WC`` (8,) is implausible given recent motion, or None if it is not."""
@@ -162,12 +190,24 @@ class DivergenceMonitor:
             out.append(f"{len(solves)} global solve(s) undone (first: {solves[0]['reason']})")
         out += [
             f"the map runs away (at frame {e['frame']}): {e['reason']}; the map's scale "
-            "after it is not trustworthy, nor are positions that depend on it (a scene seen "
-            "from much nearer or farther, turning towards other surfaces or moving sideways "
-            "towards them, looks the same)"
+            "after it is not trustworthy, nor are positions that depend on it"
             for e in spreads
+            if e.get("severity", "runaway") == "runaway"
         ]
         return out
+
+    def cautions(self) -> list[str]:
+        """One sentence per spread of severity ``"caution"`` (:meth:`severity`): worth knowing,
+        not a reason to distrust the trajectory."""
+        return [
+            f"the map's scale moved (at frame {e['frame']}): {e['reason']}; the dense map's "
+            "scale after it may be uneven, and so may positions that depend on it. A scene "
+            "seen from much nearer or farther (turning towards other surfaces, moving "
+            "sideways towards them) looks the same, so this alone does not make the run "
+            "implausible"
+            for e in self.events
+            if e["kind"] == "spread" and e.get("severity") == "caution"
+        ]
 
 
 def divergence_report(
@@ -179,8 +219,9 @@ def divergence_report(
     maps: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """The summary's divergence fields: ``warnings`` (the given ones plus the monitor's and
-    :func:`trajectory_warnings`' of the final frame poses), ``plausible`` (no warning) and
-    ``divergence_events`` (the monitor's refusals and undone solves), and the loop-closure
+    :func:`trajectory_warnings`' of the final frame poses), ``plausible`` (no warning),
+    ``cautions`` (the monitor's, which leave ``plausible`` alone) and ``divergence_events``
+    (the monitor's refusals, undone solves and spreads), and the loop-closure
     verdicts of ``mslam.system.loop_verify`` (``loop_closure_checks``, refusals counted).
 
     Args:
@@ -198,6 +239,7 @@ def divergence_report(
     return {
         "warnings": out,
         "plausible": not out,
+        "cautions": monitor.cautions(),
         "divergence_events": list(monitor.events),
         "loop_closure_candidates_unverified": sum(not c["accepted"] for c in loop_checks),
         "loop_closure_checks": loop_checks,

@@ -22,7 +22,8 @@ summary:
   through :func:`mslam.system.turns.turn_warnings`), for the summary's ``warnings``.
 
 Public names, in reading order:
-    DivergenceConfig, guard_backend, explained_log_changes, map_spread, trajectory_warnings
+    DivergenceConfig, guard_backend, explained_log_changes, Spread, find_spread, map_spread,
+    trajectory_warnings
 """
 
 from __future__ import annotations
@@ -38,7 +39,9 @@ from mslam_ref.conventions import FloatArray
 
 __all__ = [
     "DivergenceConfig",
+    "Spread",
     "explained_log_changes",
+    "find_spread",
     "guard_backend",
     "map_spread",
     "trajectory_warnings",
@@ -85,6 +88,17 @@ class DivergenceConfig:
             160x120 working resolution (ATE 12.8 cm), 126 with 72 % of the total change net,
             which the steady test passes. 25 sits a factor 3 above the first and 5 below the
             second.
+        max_confounded_drift: a drift of the world scale read with the keyframes' point
+            distances (a prior that normalises its pointmaps) is a runaway beyond this factor
+            and a caution up to it. That reading also moves when the camera turns towards
+            farther surfaces or sinks towards the floor, so a factor of a few does not tell
+            drift from scene: on sound real videos it reached 2.1 (TUM fr1_rpy turning, ATE
+            1.7 % of the path) and 7.4 (a drone landing, 2.3 %); maps that went wrong reached
+            17 (calibrated KITTI excerpts shrinking, ATE 7.5 and 11.3 m before the depth
+            weight) and 126-761 (noisy and dark variants of the 7-Scenes clip before the
+            distance weight) (2026-11-27/29, benchmarks/RESULTS.md "Cautions and runaways").
+            A reading of the Sim(3) scales alone (a metric prior) has no such confound: every
+            drift there is a runaway.
         max_spacing_growth: recent median keyframe spacing beyond this many times the map's
             first median spacing is a spreading map.
         min_jump_scale_frac: a step shorter than this share of the Sim(3) scale (the last
@@ -109,6 +123,7 @@ class DivergenceConfig:
     max_scale_drift: float = 2.0
     min_drift_trend: float = 0.8
     max_uneven_drift: float = 25.0
+    max_confounded_drift: float = 10.0
     max_spacing_growth: float = 25.0
     min_jump_scale_frac: float = 0.05
     turn: TurnConfig = field(default_factory=TurnConfig)
@@ -172,11 +187,36 @@ def explained_log_changes(T: FloatArray, depth: FloatArray) -> FloatArray:
     return np.log(np.maximum(d - f, MIN_DEPTH_FRAC * d) / d)
 
 
+@dataclass(frozen=True)
+class Spread:
+    """What :func:`find_spread` saw in one map's keyframes.
+
+    Attributes:
+        reason: one sentence, for the run's summary.
+        factor: the net drift factor of the world scale over the window (``x`` or ``1/x``,
+            whichever is larger), or the growth of the keyframe spacing.
+        kind: ``"drift"`` (the world scale) or ``"spacing"`` (the keyframe spacing).
+    """
+
+    reason: str
+    factor: float
+    kind: str
+
+
 def map_spread(
     T_kf: FloatArray, cfg: DivergenceConfig = DivergenceConfig(), depth: FloatArray | None = None
 ) -> str | None:
-    """Why keyframe poses ``T_kf`` (K, 8) of one map, in creation order, look like a map that
-    spreads without bound, or None (module docstring: a steady Sim(3) scale drift over the
+    """The sentence of :func:`find_spread` (why keyframe poses ``T_kf`` (K, 8) look like a map
+    that spreads without bound), or None."""
+    found = find_spread(T_kf, cfg, depth)
+    return None if found is None else found.reason
+
+
+def find_spread(
+    T_kf: FloatArray, cfg: DivergenceConfig = DivergenceConfig(), depth: FloatArray | None = None
+) -> Spread | None:
+    """Whether keyframe poses ``T_kf`` (K, 8) of one map, in creation order, look like a map
+    that spreads without bound, or None (module docstring: a steady Sim(3) scale drift over the
     last ``spread_window`` keyframes that the keyframes' motion towards or away from the scene
     does not explain, or an uneven one beyond ``max_uneven_drift``, or keyframe spacing grown
     ``max_spacing_growth``-fold).
@@ -209,20 +249,22 @@ def map_spread(
     steady = trend >= cfg.min_drift_trend
     if drift > cfg.max_scale_drift and (steady or drift > cfg.max_uneven_drift):
         way = "grew" if net > 0 else "shrank"
-        return (
+        why = (
             f"the keyframes' world scale {way} by a factor {drift:.3g} over the last {w} "
             f"keyframes (Sim(3) scale times their points' distance, where known), "
             f"{'steadily' if steady else 'unevenly'} (net change "
             f"{100 * trend:.0f} % of the total change), beyond what their motion towards or "
             "away from the scene explains"
         )
+        return Spread(why, drift, "drift")
     steps = np.linalg.norm(np.diff(T[:, :3], axis=0), axis=1)
     first, recent = float(np.median(steps[:w])), float(np.median(steps[-w:]))
     if first > 0 and recent > cfg.max_spacing_growth * first:
-        return (
+        why = (
             f"the recent keyframe spacing is {recent / first:.3g} times the map's first "
             "(the map grows far beyond the recent motion)"
         )
+        return Spread(why, recent / first, "spacing")
     return None
 
 
