@@ -329,7 +329,8 @@ def _one(k: int, n: int, name: str, seq: Path, cfg: Any, kernels: Any, args: Any
         ate += f"map chamfer {s['map']['chamfer_m']:.4f} m, "
     print(
         f"[{k}/{n}] {name}: {ate}{s['frames_with_pose']}/{s['frames']} posed, "
-        f"{s['frames_per_second'] or 0:.2f} FPS{'' if s['plausible'] else ', WARNING'}",
+        f"{s['frames_per_second'] or 0:.2f} FPS{'' if s['plausible'] else ', WARNING'}"
+        f"{', caution' if s.get('cautions') else ''}",
         file=sys.stderr,
     )
     return name, s, "ok"
