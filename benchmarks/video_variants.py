@@ -153,19 +153,13 @@ def read_summary(run: Path) -> dict[str, object]:
 def spread_text(s: dict) -> str:
     """The spread watch's events of a summary, for a table cell: ``caution ×2.17 (frame 333,
     up to ×3.1)`` per event (``runaway`` for one that made the run implausible), or ``–``."""
-    import re
-
     cells = []
     for e in s.get("divergence_events", []):
-        if e.get("kind") != "spread":
-            continue
-        factor = e.get("factor")
-        if factor is None:  # a summary written before events carried their factor
-            found = re.search(r"(?:factor|spacing is) ([0-9.e+]+)", e["reason"])
-            factor = float(found.group(1)) if found else float("nan")
-        largest = e.get("largest_factor", factor)
-        more = f", up to ×{largest:.3g}" if largest > factor else ""
-        cells.append(f"{e.get('severity', 'spread')} ×{factor:.3g} (frame {e['frame']}{more})")
+        if e.get("kind") == "spread":
+            more = (
+                f", up to ×{e['largest_factor']:.3g}" if e["largest_factor"] > e["factor"] else ""
+            )
+            cells.append(f"{e['severity']} ×{e['factor']:.3g} (frame {e['frame']}{more})")
     return "; ".join(cells) or "–"
 
 

@@ -24,7 +24,8 @@ its pointmaps gives a world scale that also moves with the scene's distance, so 
 is a ``"caution"`` (an event and a sentence in the summary's ``cautions``; the run may still be
 plausible) up to ``max_confounded_drift`` and a ``"runaway"`` beyond (an event and a warning:
 ``plausible`` is false); keyframe spacing that runs away, and a drift of a metric prior's
-Sim(3) scales, are always runaways. Each severity is reported once per map. :func:`guard_backend` undoes a global solve that does
+Sim(3) scales, are always runaways. Each severity is reported once per map.
+:func:`guard_backend` undoes a global solve that does
 not lower its cost or moves a keyframe too far, and :func:`trajectory_warnings` checks the
 final per-frame trajectory the same way (non-finite, jumps, a spread far beyond the path's
 steps), for the summary's ``warnings``; these stateless tests and the thresholds
@@ -179,7 +180,7 @@ class DivergenceMonitor:
         out = []
         frames = [e for e in self.events if e["kind"] == "pose"]
         solves = [e for e in self.events if e["kind"] == "solve" and not e.get("minor")]
-        spreads = [e for e in self.events if e["kind"] == "spread"]
+        runaways = [e for e in self.events if e["kind"] == "spread" and e["severity"] == "runaway"]
         if len(frames) >= self.cfg.warn_refusals:
             out.append(
                 f"{len(frames)} implausible frame pose(s) refused while running (first at "
@@ -191,8 +192,7 @@ class DivergenceMonitor:
         out += [
             f"the map runs away (at frame {e['frame']}): {e['reason']}; the map's scale "
             "after it is not trustworthy, nor are positions that depend on it"
-            for e in spreads
-            if e.get("severity", "runaway") == "runaway"
+            for e in runaways
         ]
         return out
 
@@ -206,7 +206,7 @@ class DivergenceMonitor:
             "sideways towards them) looks the same, so this alone does not make the run "
             "implausible"
             for e in self.events
-            if e["kind"] == "spread" and e.get("severity") == "caution"
+            if e["kind"] == "spread" and e["severity"] == "caution"
         ]
 
 
