@@ -2,7 +2,8 @@
 
 Progress written to a pipe or file is whole lines (no carriage-return redraws); the summary
 says what the plausibility checks covered; an RGB-only run's top view is in arbitrary units;
-a misspelt config key gets the closest key; the rgbd prior on RGB-only frames names twoview.
+a misspelt config key gets the closest key; the rgbd prior on RGB-only frames names twoview;
+an RGB-D run on depth of assumed units says so.
 """
 
 from __future__ import annotations
@@ -174,3 +175,28 @@ def test_plausible_line_says_when_the_ate_was_refused():
     refused = {"prior": "twoview", "evaluation_error": "ATE not computed: a static camera"}
     assert "ATE not computed" in _checked(refused) and "no ground truth" not in _checked(refused)
     assert "no ground truth" in _checked({"prior": "twoview"})
+
+
+def test_an_assumed_depth_scale_is_in_the_summary_and_on_the_console(tmp_path, capsys):
+    """An RGB-D run on a TUM-layout folder whose calibration has no ``depth_scale`` records the
+    5000 units per metre it assumed; with ``depth_scale`` in ``--calib`` nothing is assumed."""
+    import json
+
+    src = tmp_path / "camera"
+    assert main(["synth", "loop", "--out", str(src), "--frames", "6", "--width", "64",
+                 "--height", "48"]) == 0  # fmt: skip
+    stated = (src / "calib.yaml").read_text()
+    (src / "calib.yaml").write_text(
+        "".join(ln for ln in stated.splitlines(True) if "depth_scale" not in ln)
+    )
+    capsys.readouterr()
+    assert main(["run", str(src), "--out", str(tmp_path / "a"), "--kernels", "ref"]) == 0
+    err = capsys.readouterr().err
+    assert json.loads((tmp_path / "a" / "summary.json").read_text())["depth_scale_assumed"] == 5000
+    assert "depth: 5000 raw units per metre assumed" in err and "depth_scale: 1000" in err, err
+    cal = tmp_path / "cal.yaml"
+    cal.write_text(stated)
+    assert main(["run", str(src), "--out", str(tmp_path / "b"), "--kernels", "ref", "--calib",
+                 str(cal)]) == 0  # fmt: skip
+    assert "depth_scale_assumed" not in json.loads((tmp_path / "b" / "summary.json").read_text())
+    assert "raw units per metre assumed" not in capsys.readouterr().err

@@ -97,6 +97,36 @@ def test_calibration_with_distortion_undistorts(tum_dir: Path, tmp_path: Path) -
     assert f.rgb.shape == (H, W, 3) and f.depth.shape == (H, W)
 
 
+def _without_depth_scale(d: Path) -> Path:
+    lines = (d / "calib.yaml").read_text().splitlines()
+    (d / "calib.yaml").write_text("\n".join(ln for ln in lines if "depth_scale" not in ln) + "\n")
+    return d
+
+
+def test_depth_scale_assumed_only_where_nothing_states_it(tum_dir: Path, tmp_path: Path) -> None:
+    """A TUM-layout folder's 5000 units per metre is an assumption unless its calibration, TUM's
+    own folder names or ETH3D's ``calibration.txt`` state it; with ``depth_scale`` given, the
+    depth follows it."""
+    assert not load_sequence(tum_dir).depth_scale_assumed  # calib.yaml states 5000
+    d = _without_depth_scale(_copy(tum_dir, tmp_path / "realsense"))
+    seq = load_sequence(d)
+    assert seq.depth_scale_assumed and seq.depth_scale == 5000.0
+    mm = tmp_path / "mm.yaml"
+    mm.write_text((d / "calib.yaml").read_text() + "depth_scale: 1000\n")
+    in_mm = load_sequence(d, calib=mm)
+    assert not in_mm.depth_scale_assumed and in_mm.depth_scale == 1000.0
+    z5, z1 = seq[2].depth, in_mm[2].depth
+    valid = z5 > 0
+    assert valid.any()
+    np.testing.assert_allclose(z1[valid], 5 * z5[valid], rtol=1e-12)
+    tum = _without_depth_scale(_copy(tum_dir, tmp_path / "rgbd_dataset_freiburg1_x"))
+    (tum / "calib.yaml").unlink()
+    assert not load_sequence(tum).depth_scale_assumed
+    (d / "associations.txt").unlink()
+    (d / "depth.txt").unlink()
+    assert not load_sequence(d).depth_scale_assumed  # no depth, nothing assumed
+
+
 def test_subsample_and_resize(tum_dir: Path) -> None:
     seq = load_sequence(tum_dir, subsample=3, size=(32, 24))
     assert len(seq) == 3 and seq.T_WC.shape == (3, 8)

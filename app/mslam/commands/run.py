@@ -178,6 +178,11 @@ def _print_summary(s: dict, out: Path) -> None:
         )
         if focal.get("lens"):
             lines.append(f"  lens: {focal['lens']['reason']}")
+    if s.get("depth_scale_assumed"):
+        lines.append(
+            f"  depth: {s['depth_scale_assumed']:g} raw units per metre assumed (the TUM layout's "
+            "convention); a camera that stores millimetres needs depth_scale: 1000 in --calib"
+        )
     if s.get("frames_posed_by_rotation"):
         lines.append(
             f"  {s['frames_posed_by_rotation']} frames posed by rotation alone "

@@ -62,6 +62,9 @@ class FileSequence(FrameSequence):
         undistort: undistort images when the calibration has distortion (upstream does so
             whenever a calibration is used).
         center_principal_point: upstream's ``dataset.center_principle_point``.
+        depth_scale_assumed: ``depth_scale`` is only the layout's convention, stated neither by
+            the folder nor by ``calib`` (a TUM-layout folder from another camera); kept as
+            ``self.depth_scale_assumed`` when there is depth and ``calib`` gives none.
     """
 
     def __init__(
@@ -76,6 +79,7 @@ class FileSequence(FrameSequence):
         size: tuple[int, int] | None = None,
         undistort: bool = True,
         center_principal_point: bool = True,
+        depth_scale_assumed: bool = False,
     ) -> None:
         self.name = name
         self.rgb_paths = [Path(p) for p in rgb_paths]
@@ -94,7 +98,9 @@ class FileSequence(FrameSequence):
         if known and self.T_WC is None:
             nan = np.full(8, np.nan)
             self.T_WC_partial = np.stack([nan if t is None else t for t in self._gt])
-        self.depth_scale = float(calib.depth_scale if calib and calib.depth_scale else depth_scale)
+        given = calib.depth_scale if calib is not None else None
+        self.depth_scale = float(given or depth_scale)
+        self.depth_scale_assumed = self.has_depth and depth_scale_assumed and not given
         #: The colour-to-depth registration estimated from edges (``Calibration.colour_auto``):
         #: ``zoom``, ``score``, ``identity_score``, ``applied`` (after :meth:`register_colour`).
         self.colour_registration: dict[str, float | bool] | None = None

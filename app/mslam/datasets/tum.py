@@ -73,7 +73,9 @@ def load_tum(
     ``rgb.txt`` (depth associated from ``depth.txt`` by nearest stamp within 20 ms, if present).
     Ground truth is the nearest ``groundtruth.txt`` pose within 20 ms. Calibration: ``calib``,
     else ``calib.yaml`` in the folder, else upstream's built-in freiburg1/2/3 intrinsics when the
-    folder name says so, else none (uncalibrated).
+    folder name says so, else none (uncalibrated). Depth: 5000 units per metre unless the
+    calibration gives ``depth_scale``; outside the TUM and ETH3D datasets themselves that is an
+    assumption, recorded as ``depth_scale_assumed`` (the run's summary says so).
 
     Raises:
         FileNotFoundError: a missing index file, naming it.
@@ -119,7 +121,11 @@ def load_tum(
             if key in folder.name:
                 fx, fy, cx, cy = vals[:4]
                 cal = Calibration(640, 480, fx, fy, cx, cy, tuple(vals[4:]), 5000.0)
-    return FileSequence(folder.name, rgb_paths, stamps, depth_paths, T_WC, cal, 5000.0, size)
+    # 5000 per metre is stated by the TUM and ETH3D datasets; any other folder in their layout
+    # (a camera that stores millimetres) may differ unless its calibration says so.
+    stated = any(key in folder.name for key in TUM_CALIB) or (folder / "calibration.txt").is_file()
+    return FileSequence(folder.name, rgb_paths, stamps, depth_paths, T_WC, cal, 5000.0, size,
+                        depth_scale_assumed=not stated)  # fmt: skip
 
 
 def _eth3d_calibration(path: Path, first_rgb: Path) -> Calibration | None:

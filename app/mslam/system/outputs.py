@@ -208,6 +208,8 @@ def summary_dict(system: SlamSystem, meta: dict[str, Any], ev: dict[str, Any]) -
         out["evaluation_error"] = ev["evaluation_error"]
     if meta.get("skipped"):
         out["skipped"] = meta["skipped"]
+    if meta.get("depth_scale_assumed") is not None:
+        out["depth_scale_assumed"] = meta["depth_scale_assumed"]
     for key in ("colour_registration", "focal_estimate", "baseline", "config"):
         if key in meta:
             out[key] = {k: v for k, v in meta[key].items() if not k.startswith("_")}

@@ -69,7 +69,8 @@ def run_slam(
 
     Returns:
         the system (keyframes, graph, per-frame poses, stats) and ``meta`` (source, prior,
-        seconds, interrupted; ``focal_estimate`` when the focal length was estimated).
+        seconds, interrupted; ``focal_estimate`` when the focal length was estimated;
+        ``depth_scale_assumed`` when the depth's units are only its layout's convention).
     """
     focal = None
     t_focal = time.perf_counter()
@@ -137,6 +138,8 @@ def run_slam(
     }
     if focal is not None:
         meta["focal_estimate"] = {**focal, "seconds": t_focal}
+    if source.depth_scale_assumed is not None:
+        meta["depth_scale_assumed"] = source.depth_scale_assumed
     return system, meta
 
 

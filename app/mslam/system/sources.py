@@ -55,6 +55,9 @@ class Source:
         prior: the prior instance. prior_name: its name.
         K: (3, 3) intrinsics at the frame resolution when calibrated, else None.
         name: human-readable source name.
+        depth_scale_assumed: the depth's raw units per metre when a depth prior reads depth
+            whose scale is only its layout's convention (``FileSequence.depth_scale_assumed``),
+            else None.
     """
 
     sequence: FrameSequence
@@ -62,6 +65,7 @@ class Source:
     prior_name: str
     K: np.ndarray | None
     name: str
+    depth_scale_assumed: float | None = None
 
 
 def _make_prior(
@@ -143,6 +147,9 @@ def open_source(
         raise ValueError(f"{source}: the synthetic prior needs ground-truth poses and intrinsics")
     if (use_calib or prior_name == "rgbd") and hasattr(seq, "register_colour"):
         seq.register_colour()  # colour not registered to depth (7-Scenes folders)
+    assumed = None
+    if prior_name in ("synthetic", "rgbd") and getattr(seq, "depth_scale_assumed", False):
+        assumed = float(seq.depth_scale)
     if prior_name == "twoview" and getattr(seq, "depth_paths", None) is not None:
         seq.depth_paths, seq.has_depth = None, False  # RGB only: no depth file is ever read
     if cfg.dataset.subsample > 1:
@@ -157,7 +164,7 @@ def open_source(
     K = seq.K if use_calib else None
     if K is not None and hasattr(p, "network_intrinsics"):
         K = p.network_intrinsics(K, first)  # pointmaps come at the network resolution
-    return Source(seq, p, prior_name, K, seq.name or str(source))
+    return Source(seq, p, prior_name, K, seq.name or str(source), assumed)
 
 
 def self_calibrate(source: Source) -> dict[str, object] | None:
