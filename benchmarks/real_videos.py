@@ -12,6 +12,12 @@ path on other cameras, scenes and motions, from sample data that public reposito
 * ``--benchun DIR``: a clone of github.com/benchun123/cuboid_slam_with_bbox_constraints.
   ``data/raw_imgs``: 58 key frames of TUM RGB-D fr3_cabinet, about 0.67 s apart (2-17° and
   7-23 cm between frames), with their ground-truth poses.
+* ``--realsense DIR``: a clone of github.com/Taeyoung96/Make-ORB-SLAM2-RGBD-dataset: 193
+  frames of an office with monitors from a hand-held Intel RealSense D435 at 640x480 and 30 Hz
+  (turns, a loop back to the start, motion blur), depth in millimetres, no ground truth and no
+  saved intrinsics. Its "ground truth" here is the RGB-D run of the same frames (``mslam run``
+  with the D435's nominal intrinsics, 615 px, and ``depth_scale: 1000``): the RGB-only rows
+  measure agreement with the RGB-D prior, not accuracy.
 * ``--tum DIR`` (repeatable): any TUM RGB-D folder as downloaded (``rgb.txt``,
   ``groundtruth.txt``); calibrated runs use the Freiburg intrinsics its name gives.
 
@@ -27,11 +33,13 @@ taken to look along the body's forward axis (``R_WC = R_WB diag(-1, -1, 1)``; po
 the fair measure). KITTI's intrinsics come from its odometry calibration by image size (the
 ``line`` folder's ``calib.txt`` is the drone's).
 
-Usage: ``python benchmarks/real_videos.py WORK [--yacynte DIR] [--benchun DIR] [--tum DIR ...]
+Usage: ``python benchmarks/real_videos.py WORK [--yacynte DIR] [--benchun DIR] [--realsense DIR]
+[--tum DIR ...]
 [--variants] [--jobs 2] [--no-write] [--reuse]``; ``--reuse`` keeps the runs that already
 have a ``summary.json`` (a table after a change that moves no trajectory); writes the section ``real-videos`` of RESULTS.md
-unless ``--no-write``. About 20 min with all three sources and ``--variants`` on 2 cores
-(2026-11-29).
+unless ``--no-write``. About 20 min with the first three sources and ``--variants`` on 2 cores
+(2026-11-29); the RealSense office adds about 9 min, its RGB-D reference run included
+(2026-11-30).
 """
 
 from __future__ import annotations
@@ -60,6 +68,9 @@ KITTI_INTRINSICS = {
 }
 #: TUM RGB-D Freiburg 3 colour camera (fx, fy, cx, cy; its images come undistorted).
 FREIBURG3 = [535.4, 539.2, 320.1, 247.6]
+#: Nominal fx, fy, cx, cy of a RealSense D435's colour stream at 640x480 (the recording kept
+#: none of its own).
+D435_640 = [615.0, 615.0, 320.0, 240.0]
 #: Body (Y up, Z forward) to camera (x right, y down, z forward) of the drone.
 R_BODY_CAMERA = np.diag([-1.0, -1.0, 1.0])
 
@@ -154,6 +165,29 @@ def cabinet(repo: Path, out: Path) -> Path:
     return write_tum(out / "fr3_cabinet_kf", frames, poses, calib, "TUM fr3_cabinet key frames")
 
 
+def realsense(repo: Path, work: Path, reuse: bool) -> Path:
+    """The RealSense office (module docstring) as a TUM folder; its poses are the RGB-D run's."""
+    rows = [r.split() for r in (repo / "associations.txt").read_text().splitlines()
+            if r.strip() and not r.startswith("#")]  # fmt: skip
+    fx, fy, cx, cy = D435_640
+    K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+    cal = work / "realsense_d435_mm.yaml"
+    cal.write_text(calibration_yaml(K, 640, 480, depth_scale=1000.0))
+    ref = work / "runs" / "realsense_office_rgbd"
+    if not (reuse and (ref / "trajectory.txt").is_file()):
+        ref = run_one(work, ref.name, [str(repo), "--calib", str(cal)], prior="rgbd")
+    T = np.loadtxt(ref / "trajectory.txt")  # every frame, in frame order
+    if len(T) != len(rows):
+        raise ValueError(f"{ref}: the RGB-D reference posed {len(T)} of {len(rows)} frames")
+    frames = [(k / 30.0, repo / r[1]) for k, r in enumerate(rows)]  # its own stamps are broken
+    poses = [(k / 30.0, _pose(Rotation.from_quat(T[k, 4:8]).as_matrix(), T[k, 1:4]))
+             for k in range(len(rows))]  # fmt: skip
+    note = "RealSense D435 office, Taeyoung96/Make-ORB-SLAM2-RGBD-dataset; poses: the RGB-D run"
+    return write_tum(
+        work / "inputs" / "realsense_office", frames, poses, (640, 480, D435_640), note
+    )
+
+
 def variant(folder: Path, name: str, order: list[int]) -> Path:
     """``folder`` replayed in ``order`` (frame indices) with its first timestamps and steps;
     each frame keeps its true pose (re-stamped)."""
@@ -207,6 +241,8 @@ def build(args: argparse.Namespace) -> list[Path]:
                    lambda: kitti(args.yacynte, out, "line")]  # fmt: skip
     if args.benchun:
         makers.append(lambda: cabinet(args.benchun, out))
+    if args.realsense:
+        makers.append(lambda: realsense(args.realsense, args.work, args.reuse))
     folders = [make() for make in makers]
     if args.variants:
         folders = [v for f in folders for v in with_variants(f)]
@@ -218,6 +254,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("work", type=Path)
     ap.add_argument("--yacynte", type=Path, help="clone of Yacynte/Monocular-Visual-Odometry")
     ap.add_argument("--benchun", type=Path, help="clone of cuboid_slam_with_bbox_constraints")
+    ap.add_argument("--realsense", type=Path, help="clone of Make-ORB-SLAM2-RGBD-dataset")
     ap.add_argument("--tum", type=Path, action="append", default=[], help="a TUM RGB-D folder")
     ap.add_argument("--variants", action="store_true", help="also backwards and every 2nd")
     ap.add_argument("--jobs", type=int, default=2)
@@ -225,7 +262,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--reuse", action="store_true",
                     help="keep runs that already have a summary.json in WORK/runs")  # fmt: skip
     args = ap.parse_args(argv)
-    for opt in ("yacynte", "benchun"):
+    for opt in ("yacynte", "benchun", "realsense"):
         if getattr(args, opt) and not getattr(args, opt).is_dir():
             print(f"--{opt}: {getattr(args, opt)}: folder not found", file=sys.stderr)
             return 2
@@ -233,8 +270,8 @@ def main(argv: list[str] | None = None) -> int:
         if not (folder / "rgb.txt").is_file():
             print(f"--tum: {folder}: no rgb.txt (not a TUM RGB-D folder)", file=sys.stderr)
             return 2
-    if not (args.yacynte or args.benchun or args.tum):
-        print("nothing to run: give --yacynte, --benchun or --tum", file=sys.stderr)
+    if not (args.yacynte or args.benchun or args.realsense or args.tum):
+        print("nothing to run: give --yacynte, --benchun, --realsense or --tum", file=sys.stderr)
         return 2
     jobs: dict[str, tuple[str, str, list[str]]] = {}
     for folder in build(args):
