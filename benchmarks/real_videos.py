@@ -15,7 +15,7 @@ path on other cameras, scenes and motions, from sample data that public reposito
 * ``--realsense DIR``: a clone of github.com/Taeyoung96/Make-ORB-SLAM2-RGBD-dataset: 193
   frames of an office with monitors from a hand-held Intel RealSense D435 at 640x480 and 30 Hz
   (turns, a loop back to the start, motion blur), depth in millimetres, no ground truth and no
-  saved intrinsics. Its "ground truth" here is the RGB-D run of the same frames (``mslam run``
+  saved intrinsics (RESULTS.md calls it the D435 desk sequence). Its "ground truth" here is the RGB-D run of the same frames (``mslam run``
   with the D435's nominal intrinsics, 615 px, and ``depth_scale: 1000``): the RGB-only rows
   measure agreement with the RGB-D prior, not accuracy.
 * ``--tum DIR`` (repeatable): any TUM RGB-D folder as downloaded (``rgb.txt``,
