@@ -2,11 +2,12 @@
 
 ::
 
-    python tools/map_figure.py CLIP OUT.png RUN [RUN ...] [--label NAME ...] [--icp]
+    python tools/map_figure.py CLIP OUT.png RUN [RUN ...] [--label NAME ...] [--icp | --both]
 
 Each ``RUN`` folder holds ``trajectory.txt`` and ``reconstruction.ply``. The map is moved by the
 Sim(3) that aligns the trajectory to the clip's ground truth (``mslam.map_metrics``; with
-``--icp`` then registered rigidly onto the truth) and drawn, one row per run, from the top (x–y
+``--icp`` then registered rigidly onto the truth; ``--both``: a row for each) and drawn, one
+row per run and alignment, from the top (x–y
 of the truth's world frame after removing its vertical principal axis) and from the side, in
 colour over the truth cloud (grey). Points are subsampled so the PNG stays small.
 """
@@ -18,7 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
-#: Points drawn per cloud (a seeded draw): enough to see the surfaces, a PNG under ~150 KB.
+#: Points drawn per cloud (a seeded draw): enough to see the surfaces, about 65 KB of PNG per
+#: row.
 DRAW_POINTS = 12_000
 
 
@@ -44,7 +46,9 @@ def main() -> None:
     ap.add_argument("out", type=Path)
     ap.add_argument("runs", type=Path, nargs="+")
     ap.add_argument("--label", nargs="*", default=None)
-    ap.add_argument("--icp", action="store_true")
+    how = ap.add_mutually_exclusive_group()
+    how.add_argument("--icp", action="store_true")
+    how.add_argument("--both", action="store_true", help="trajectory Sim(3), then ICP")
     args = ap.parse_args()
     import matplotlib
 
@@ -66,9 +70,12 @@ def main() -> None:
 
     tr = frame(truth)
     labels = args.label or [r.name for r in args.runs]
-    fig, axes = plt.subplots(len(args.runs), 2, figsize=(8, 3.2 * len(args.runs)), squeeze=False)
-    for row, (run, name) in enumerate(zip(args.runs, labels, strict=True)):
-        M = frame(_aligned(args.clip, run, truth, args.icp))
+    modes = [(False, "trajectory Sim(3)"), (True, "ICP")] if args.both else [(args.icp, "")]
+    rows = [(run, f"{name}, {how}" if how else name, icp)
+            for run, name in zip(args.runs, labels, strict=True) for icp, how in modes]  # fmt: skip
+    fig, axes = plt.subplots(len(rows), 2, figsize=(8, 3.2 * len(rows)), squeeze=False)
+    for row, (run, name, icp) in enumerate(rows):
+        M = frame(_aligned(args.clip, run, truth, icp))
         for col, (a, b, view) in enumerate(((0, 1, "top-down"), (0, 2, "side"))):
             ax = axes[row, col]
             ax.scatter(tr[:, a], tr[:, b], s=0.2, c="0.7", lw=0, rasterized=True)
@@ -76,9 +83,10 @@ def main() -> None:
             ax.set_aspect("equal")
             ax.set_xlim(tr[:, a].min() - 0.3, tr[:, a].max() + 0.3)
             ax.set_ylim(tr[:, b].min() - 0.3, tr[:, b].max() + 0.3)
-            ax.set_title(f"{name}: {view} (grey: truth)", fontsize=9)
+            ax.set_title(f"{name}: {view}", fontsize=9)
             ax.tick_params(labelsize=7)
             ax.set_xlabel("m", fontsize=7)
+    fig.suptitle("map (red) over the true surface (grey)", fontsize=10)
     fig.tight_layout()
     fig.savefig(args.out, dpi=72)
 
