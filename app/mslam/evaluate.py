@@ -148,7 +148,9 @@ def associate(est_stamps: Any, gt_stamps: Any, max_diff: float = 0.01) -> tuple[
     return (i_short, i_long) if est_drives else (i_long, i_short)
 
 
-def umeyama(src: Any, dst: Any, with_scale: bool = True) -> tuple[FloatArray, FloatArray, float]:
+def umeyama(
+    src: Any, dst: Any, with_scale: bool = True, names: tuple[str, str] = ("src", "dst")
+) -> tuple[FloatArray, FloatArray, float]:
     """Least-squares similarity ``dst_i ≈ s R src_i + t`` (Umeyama, PAMI 1991).
 
     Upstream: evo core/geometry.py::umeyama_alignment.
@@ -161,6 +163,7 @@ def umeyama(src: Any, dst: Any, with_scale: bool = True) -> tuple[FloatArray, Fl
         src: (n, 3) points to move (estimate positions).
         dst: (n, 3) target points (ground truth).
         with_scale: estimate ``s`` (Sim(3)); otherwise ``s = 1`` (SE(3)).
+        names: what the errors call ``src`` and ``dst``.
 
     Returns:
         R (3, 3), t (3,), s.
@@ -186,18 +189,19 @@ def umeyama(src: Any, dst: Any, with_scale: bool = True) -> tuple[FloatArray, Fl
     sc, dc = src_n - mu_s, dst_n - mu_d
     var_s = float(np.mean(np.sum(sc * sc, axis=1)))
     var_d = float(np.mean(np.sum(dc * dc, axis=1)))
-    for name, var in (("src", var_s), ("dst", var_d)):
+    for name, var in zip(names, (var_s, var_d), strict=True):
         if not var > _REL_SPREAD_TOL**2:
             raise ValueError(
                 f"{name}: degenerate point configuration ({n} points without spread relative "
-                "to their magnitude: a static camera); Umeyama alignment is not possible"
+                "to their magnitude: a static camera, or one that only turned); Umeyama "
+                "alignment is not possible"
             )
     cov = dc.T @ sc / n
     U, D, Vt = np.linalg.svd(cov)
     if not (D[0] > 0 and D[1] > _REL_RANK_TOL * D[0]):
         raise ValueError(
-            f"src: degenerate point configuration ({n} points: static, collinear or without "
-            "spread relative to their magnitude); Umeyama alignment is not possible"
+            f"{names[0]}: degenerate point configuration ({n} points: static, collinear or "
+            "without spread relative to their magnitude); Umeyama alignment is not possible"
         )
     S = np.ones(3)
     if np.linalg.det(U) * np.linalg.det(Vt) < 0:
@@ -284,7 +288,7 @@ def ate(
     if align == "none":
         R, t, s = np.eye(3), np.zeros(3), 1.0
     else:
-        R, t, s = umeyama(src, dst, with_scale=(align == "sim3"))
+        R, t, s = umeyama(src, dst, align == "sim3", ("est_poses", "gt_poses"))
     aligned = s * src @ R.T + t
     with np.errstate(over="ignore", invalid="ignore"):
         err = np.linalg.norm(aligned - dst, axis=1)

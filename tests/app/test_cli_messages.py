@@ -200,3 +200,19 @@ def test_an_assumed_depth_scale_is_in_the_summary_and_on_the_console(tmp_path, c
                  str(cal)]) == 0  # fmt: skip
     assert "depth_scale_assumed" not in json.loads((tmp_path / "b" / "summary.json").read_text())
     assert "raw units per metre assumed" not in capsys.readouterr().err
+
+
+def test_too_few_posed_frames_for_an_ate_are_said_so(tmp_path, capsys):
+    """Ground truth but fewer than 3 posed frames: the summary and the console say why there is
+    no ATE, and the plausibility line does not claim there is no ground truth."""
+    import json
+
+    out = tmp_path / "two"
+    assert main(["run", "synthetic:loop:6:64x48", "--max-frames", "2", "--kernels", "ref",
+                 "--out", str(out)]) == 0  # fmt: skip
+    err = capsys.readouterr().err
+    s = json.loads((out / "summary.json").read_text())
+    why, posed = s["evaluation_error"], s["frames_with_pose"]
+    assert posed < 3 and why.startswith(f"ATE not computed: {posed} posed frame")
+    assert why.endswith("(an alignment needs at least 3)") and "ate_rmse" not in s
+    assert f"  {why}" in err and "no ground truth" not in err, err

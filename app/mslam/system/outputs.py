@@ -120,6 +120,11 @@ def evaluate_run(system: SlamSystem, sequence: FrameSequence) -> dict[str, Any]:
     truth = sequence.ground_truth()
     if truth is None or len(T) < 3:
         out["path_length"] = out["path_length_est"]
+        if truth is not None:
+            out["evaluation_error"] = (
+                f"ATE not computed: {len(T)} posed frame{'s' * (len(T) != 1)} "
+                "(an alignment needs at least 3)"
+            )
         return out
     gt_idx, gt_ts, gt = truth
     # Ground truth over consecutive frames that both have a pose (a relocation jump is no path).
