@@ -158,6 +158,15 @@ def test_rgbd_prior_on_rgb_frames_names_twoview(rgb_folder, tmp_path, capsys):
     assert not (tmp_path / "o").exists()
 
 
+def test_twoview_on_one_frame_is_refused_in_one_line(rgb_folder, tmp_path, capsys):
+    rc = main(["run", str(rgb_folder), "--out", str(tmp_path / "o"), "--prior", "twoview",
+               "--max-frames", "1"])  # fmt: skip
+    err = capsys.readouterr().err
+    assert rc == 2 and err.count("\n") == 1, err
+    assert "1 frame to run" in err and "at least 2" in err
+    assert not (tmp_path / "o").exists()
+
+
 def test_summary_says_what_the_edge_counts_are(tmp_path, capsys):
     """The console names what counts as a loop-closure edge: every non-consecutive edge that
     retrieval proposed and the check accepted, not only the closures of a loop."""

@@ -160,6 +160,11 @@ def open_source(
         seq = ResizedSequence(seq, w, h, (W, H))
     if max_frames is not None and max_frames < len(seq):
         seq = TruncatedSequence(seq, max_frames)
+    if prior_name == "twoview" and len(seq) < 2:
+        raise ValueError(
+            f"{source}: 1 frame to run; the twoview prior makes pointmaps from pairs of frames, "
+            "so it needs at least 2"
+        )
     p = _make_prior(prior_name, seq, use_calib, cfg)
     K = seq.K if use_calib else None
     if K is not None and hasattr(p, "network_intrinsics"):
