@@ -12,6 +12,7 @@ from tolerances import (
     F64_CONDITIONED,
     F64_IDENTITY,
     F64_SOLVE,
+    F64_ULPS,
     SEVEN_SCENES_POSE,
     TEXT_6_DECIMALS,
     TUM_DEPTH_STEP,
@@ -118,7 +119,7 @@ def test_depth_scale_assumed_only_where_nothing_states_it(tum_dir: Path, tmp_pat
     z5, z1 = seq[2].depth, in_mm[2].depth
     valid = z5 > 0
     assert valid.any()
-    np.testing.assert_allclose(z1[valid], 5 * z5[valid], rtol=1e-12)
+    np.testing.assert_allclose(z1[valid], 5 * z5[valid], rtol=F64_ULPS)
     tum = _without_depth_scale(_copy(tum_dir, tmp_path / "rgbd_dataset_freiburg1_x"))
     (tum / "calib.yaml").unlink()
     assert not load_sequence(tum).depth_scale_assumed

@@ -54,8 +54,7 @@ __all__ = [
 
 SCALE_TOLERANCE = 0.2  #: default of ``output.scale_tolerance`` (log ratio, ``system.map_scale``)
 
-#: Default of ``output.C_conf_threshold``, the average confidence an exported point must exceed
-#: (upstream viz default, docs/upstream.md §13).
+#: Default of ``output.C_conf_threshold``: exported points exceed it (upstream, §13).
 C_CONF_THRESHOLD = 1.5
 
 
@@ -121,10 +120,7 @@ def evaluate_run(system: SlamSystem, sequence: FrameSequence) -> dict[str, Any]:
     if truth is None or len(T) < 3:
         out["path_length"] = out["path_length_est"]
         if truth is not None:
-            out["evaluation_error"] = (
-                f"ATE not computed: {len(T)} posed frame{'s' * (len(T) != 1)} "
-                "(an alignment needs at least 3)"
-            )
+            out["evaluation_error"] = f"ATE not computed: too few posed frames ({len(T)}; 3 needed)"
         return out
     gt_idx, gt_ts, gt = truth
     # Ground truth over consecutive frames that both have a pose (a relocation jump is no path).
@@ -211,10 +207,9 @@ def summary_dict(system: SlamSystem, meta: dict[str, Any], ev: dict[str, Any]) -
                 out[key] = ev[key]
     if "evaluation_error" in ev:
         out["evaluation_error"] = ev["evaluation_error"]
-    if meta.get("skipped"):
-        out["skipped"] = meta["skipped"]
-    if meta.get("depth_scale_assumed") is not None:
-        out["depth_scale_assumed"] = meta["depth_scale_assumed"]
+    for key in ("skipped", "depth_scale_assumed"):
+        if meta.get(key):
+            out[key] = meta[key]
     for key in ("colour_registration", "focal_estimate", "baseline", "config"):
         if key in meta:
             out[key] = {k: v for k, v in meta[key].items() if not k.startswith("_")}
