@@ -231,7 +231,9 @@ def test_rgbd_source_defaults_to_the_rgbd_config(tmp_path, fast64, config, mode)
     assert s["config"]["tracking"]["filtering_mode"] == mode
 
 
-def test_a_single_image_runs_and_says_nothing_was_posed(tmp_path, recwarn):
+def test_a_single_image_is_refused_by_the_twoview_prior(tmp_path, capsys):
+    """One image has no pair, so the two-view prior can pose nothing: exit 2 before any work,
+    one line, no output (the RGB-D prior poses a single frame)."""
     import cv2
 
     d = tmp_path / "one"
@@ -241,7 +243,6 @@ def test_a_single_image_runs_and_says_nothing_was_posed(tmp_path, recwarn):
     out = tmp_path / "out"
     rc = main(["run", str(d), "--prior", "twoview", "--out", str(out), "--kernels", "ref",
                "--quiet"])  # fmt: skip
-    assert rc == 0 and all((out / n).exists() for n in OUTPUTS)
-    s = json.loads((out / "summary.json").read_text(), parse_constant=_reject_nan)
-    assert s["frames"] == 1 and not s["plausible"] and s["warnings"]
-    assert not [w for w in recwarn if "legend" in str(w.message)]  # an empty plot, no notices
+    err = capsys.readouterr().err
+    assert rc == 2 and err.count("\n") == 1 and "needs at least 2" in err, err
+    assert not out.exists()
