@@ -10,6 +10,8 @@ is out of sight: the map starts without depth from the waiting frames' rotations
   is tracked against gets depth (tracking never aligns a frame to a plane).
 * ``short pan``: a pan that ends before the first view is out of sight is posed at the end of
   the sequence instead of being lost.
+* frames that never start a map (a view, then a covered lens) are counted lost at the end, so
+  every frame is posed, lost or skipped.
 """
 
 from __future__ import annotations
@@ -101,6 +103,16 @@ def test_a_short_pan_is_posed_at_the_end_of_the_sequence() -> None:
     assert idx.tolist() == list(range(len(frames)))
     err = orientation_errors_deg(so3.to_matrix(T_est[:, 3:7]), so3.to_matrix(T[:, 3:7]))
     assert err.max() < ROTATION_ONLY_ORIENTATION_DEG, err.round(1)
+
+
+def test_frames_that_never_start_a_map_are_counted_lost() -> None:
+    frames, T = _frames(1, 0)
+    grey = np.full_like(frames[0].rgb, 128)  # a covered lens: no pair, no rotation
+    frames += [Frame(i, i / 30.0, grey, None, T[0]) for i in (1, 2)]
+    system, statuses = _run(frames)
+    assert statuses == [FrameStatus.WAITING] * 3 and len(system.keyframes) == 0
+    assert [(p.index, p.status) for p in system.poses] == [(i, FrameStatus.LOST) for i in range(3)]
+    assert system.stats.lost_frames == 3
 
 
 def test_the_console_and_summary_count_the_frames_posed_by_rotation(tmp_path, capsys) -> None:

@@ -120,9 +120,14 @@ class RotationStart:
     def finish_waiting(self) -> None:
         """At the end of the sequence, pose the frames still waiting for parallax by their
         rotations (:meth:`start_by_rotation`), when they have any: a short pan from a tripod
-        is posed, not lost."""
+        is posed, not lost. Frames that stay unposed are recorded and counted as lost, so
+        that every frame is posed, lost or skipped."""
         if self.mode == Mode.INIT and self.init_candidate is not None:
-            self.start_by_rotation(None)
+            if self.start_by_rotation(None) is None:
+                for f in [self.init_candidate, *self.init_pending]:
+                    self.stats.lost_frames += 1
+                    self.record(f, -1, None, FrameStatus.LOST)
+                self.restart_wait(None)
 
     def seed_depth(self, kf_idx: int, frame: Frame) -> None:
         """Give keyframe ``kf_idx`` the depth of its pair with ``frame`` when it has none and
