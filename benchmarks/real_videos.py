@@ -98,10 +98,15 @@ def write_tum(folder: Path, frames: Frames, poses: Poses, calib: tuple[int, int,
         q = Rotation.from_matrix(T[:3, :3]).as_quat()
         gt.append(f"{t:.6f} " + " ".join(f"{v:.7f}" for v in (*T[:3, 3], *q)))
     (folder / "groundtruth.txt").write_text("\n".join(gt) + "\n")
-    w, h, (fx, fy, cx, cy) = calib
-    K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
-    folder.with_suffix(".yaml").write_text(calibration_yaml(K, w, h))
+    w, h, vals = calib
+    folder.with_suffix(".yaml").write_text(calibration_yaml(_K(vals), w, h))
     return folder
+
+
+def _K(vals: list[float]) -> np.ndarray:
+    """(3, 3) intrinsics from ``[fx, fy, cx, cy]``."""
+    fx, fy, cx, cy = vals
+    return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
 
 
 def _pose(R: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -169,10 +174,8 @@ def realsense(repo: Path, work: Path, reuse: bool) -> Path:
     """The RealSense office (module docstring) as a TUM folder; its poses are the RGB-D run's."""
     rows = [r.split() for r in (repo / "associations.txt").read_text().splitlines()
             if r.strip() and not r.startswith("#")]  # fmt: skip
-    fx, fy, cx, cy = D435_640
-    K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
     cal = work / "realsense_d435_mm.yaml"
-    cal.write_text(calibration_yaml(K, 640, 480, depth_scale=1000.0))
+    cal.write_text(calibration_yaml(_K(D435_640), 640, 480, depth_scale=1000.0))
     ref = work / "runs" / "realsense_office_rgbd"
     if not (reuse and (ref / "trajectory.txt").is_file()):
         ref = run_one(work, ref.name, [str(repo), "--calib", str(cal)], prior="rgbd")

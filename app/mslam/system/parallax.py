@@ -205,6 +205,7 @@ class ParallaxSteps:
     make_keyframe: Callable[..., int]
     lose_tracking: Callable[[], None]
     start_by_rotation: Callable[[Frame | None], FrameStatus | None]
+    lose_waiting: Callable[[], None]
 
     def pair_status(self, p: PairPrediction) -> str:
         """The prior's verdict on its last pair ``p``, ``"parallax"`` also for an ``"ok"`` pair
@@ -245,9 +246,7 @@ class ParallaxSteps:
                 started = self.start_by_rotation(frame)  # the waiting frames turned: start
                 if started is not None:
                     return started
-                for f in [cand, *self.init_pending]:  # else start again from here
-                    self.stats.lost_frames += 1
-                    self.record(f, -1, None, FrameStatus.LOST)
+                self.lose_waiting()  # else start again from here
                 self.restart_wait(frame)
             else:
                 self.init_pending.append(frame)

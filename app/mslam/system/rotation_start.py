@@ -124,10 +124,15 @@ class RotationStart:
         that every frame is posed, lost or skipped."""
         if self.mode == Mode.INIT and self.init_candidate is not None:
             if self.start_by_rotation(None) is None:
-                for f in [self.init_candidate, *self.init_pending]:
-                    self.stats.lost_frames += 1
-                    self.record(f, -1, None, FrameStatus.LOST)
+                self.lose_waiting()
                 self.restart_wait(None)
+
+    def lose_waiting(self) -> None:
+        """Record the waiting candidate and the frames waiting with it as lost (counted)."""
+        for f in [self.init_candidate, *self.init_pending]:
+            if f is not None:
+                self.stats.lost_frames += 1
+                self.record(f, -1, None, FrameStatus.LOST)
 
     def seed_depth(self, kf_idx: int, frame: Frame) -> None:
         """Give keyframe ``kf_idx`` the depth of its pair with ``frame`` when it has none and
