@@ -145,6 +145,31 @@ def test_a_plane_has_two_poses_and_a_third_view_chooses():
     assert _dir_err_deg(t, t_gt) < 3.0
 
 
+def test_sign_twins_of_a_homography_are_refined_once(monkeypatch):
+    """OpenCV lists each decomposition as (R, t) and (R, -t); refining only the first loses
+    no candidate: with every twin refined, the same list comes out (the twins merge)."""
+    import mslam.priors.twoview_planar as planar
+
+    K = intrinsics_from_fov(W, H, 70.0)
+    R_gt = so3.to_matrix(so3.exp(np.radians([0.5, -2.0, 0.3])))
+    uv_i, uv_j, _ = _plane_pair(R_gt, np.array([-0.1, 0.01, 0.0]), K)
+    uv_j = uv_j + np.random.default_rng(0).normal(0, 0.2, uv_j.shape)
+    calls = []
+    refine = planar.refine_pose
+    monkeypatch.setattr(planar, "refine_pose", lambda *a: calls.append(1) or refine(*a))
+    start = (np.eye(3), np.array([0.0, 0.0, 1.0]))
+    cands = pose_candidates(uv_i, uv_j, K, *start)
+    n_once = len(calls)
+    monkeypatch.setattr(planar, "_add_unsigned", lambda hyps, R, t: hyps.append((R, t)))
+    cands_all = pose_candidates(uv_i, uv_j, K, *start)
+    assert n_once == 3 and len(calls) - n_once == 5  # essential + 2 of the 4 decompositions
+    assert len(cands) == len(cands_all) >= 2
+    for (R, t, c), (R2, t2, c2) in zip(cands, cands_all):
+        np.testing.assert_array_equal(R, R2)
+        np.testing.assert_array_equal(t, t2)
+        assert c == c2
+
+
 def test_non_planar_pair_is_not_ambiguous(loop):
     """Depth structure (a corner of the room) leaves a single hypothesis."""
     K = loop.K

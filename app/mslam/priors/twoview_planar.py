@@ -61,6 +61,20 @@ def _front_sign(uv_i, uv_j, K, R, t) -> FloatArray:
     return t if n_pos >= n_neg else -t
 
 
+def _add_unsigned(hyps: list[tuple[FloatArray, FloatArray]], R: FloatArray, t: FloatArray) -> None:
+    """Append ``(R, t)`` unless ``(R, -t)`` is already listed.
+
+    OpenCV returns each homography decomposition twice, as ``(R, t, n)`` and ``(R, -t, -n)``.
+    Sampson distances do not change when ``t`` changes sign, so both refine to the same pose
+    up to the sign of ``t``, which :func:`_front_sign` then sets alike: the second is a
+    duplicate that the merge in :func:`pose_candidates` would drop after refining it.
+    """
+    for R2, t2 in hyps:
+        if np.array_equal(R, R2) and np.allclose(t, -t2, rtol=0.0, atol=1e-12):
+            return
+    hyps.append((R, t))
+
+
 def pose_candidates(
     uv_i: FloatArray,
     uv_j: FloatArray,
@@ -95,7 +109,7 @@ def pose_candidates(
             for R, t in zip(Rs, ts):
                 t = np.asarray(t, np.float64).ravel()
                 if np.linalg.norm(t) > 1e-9:  # zero translation: a rotation, no candidate
-                    hyps.append((np.asarray(R, np.float64), t / np.linalg.norm(t)))
+                    _add_unsigned(hyps, np.asarray(R, np.float64), t / np.linalg.norm(t))
     out: list[tuple[FloatArray, FloatArray, float]] = []
     # Hypotheses are refined on a regular subsample (REFINE_POINTS); the caller polishes the
     # chosen one on all correspondences.
