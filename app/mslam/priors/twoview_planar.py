@@ -87,7 +87,8 @@ def pose_candidates(
     """Refined pose hypotheses of a pair: ``[(R_ji, t_ji, cost), ...]``, lowest cost first.
 
     The essential-matrix pose ``(R_ji, t_ji)`` and every decomposition of the RANSAC
-    homography of the correspondences (``cv2.decomposeHomographyMat``) are refined by
+    homography of the correspondences (``cv2.decomposeHomographyMat``, one of each sign pair,
+    :func:`_add_unsigned`) are refined by
     :func:`~mslam.priors.twoview_geometry.refine_pose`; the sign of ``t`` is set by
     cheirality; near-duplicates (< 0.5° apart in rotation and translation direction) are
     merged. ``cost`` is the mean Huber (``huber_px``) Sampson distance.
