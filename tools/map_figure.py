@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -24,20 +25,19 @@ import numpy as np
 DRAW_POINTS = 12_000
 
 
-def _aligned(clip: Path, run: Path, truth: np.ndarray, icp: bool) -> np.ndarray:
-    from mslam.datasets import load_sequence
+def _aligned(seq: Any, run: Path, truth: np.ndarray, icps: list[bool]) -> list[np.ndarray]:
+    """The run's map moved by the trajectory's Sim(3) to the clip ``seq``'s ground truth, then
+    (for each ``True`` in ``icps``) registered onto ``truth``: one cloud per entry."""
     from mslam.evaluate import ate
     from mslam.formats import read_ply, read_trajectory
     from mslam.map_metrics import align_points, icp_refine
 
-    seq = load_sequence(str(clip))
     ts, T = read_trajectory(run / "trajectory.txt")
     xyz, _ = read_ply(run / "reconstruction.ply")
     res = ate(ts, T, np.asarray(seq.timestamps, float), np.asarray(seq.T_WC), "sim3")
     R, t, s = res.rotation, res.translation, res.scale
-    if icp:
-        R, t, s = icp_refine(xyz, truth, R, t, s)
-    return align_points(xyz, R, t, s)
+    return [align_points(xyz, *(icp_refine(xyz, truth, R, t, s) if icp else (R, t, s)))
+            for icp in icps]  # fmt: skip
 
 
 def main() -> None:
@@ -58,7 +58,8 @@ def main() -> None:
     from mslam.datasets import load_sequence
     from mslam.map_metrics import truth_from_rgbd
 
-    truth = truth_from_rgbd(load_sequence(str(args.clip)))
+    seq = load_sequence(str(args.clip))
+    truth = truth_from_rgbd(seq)
     # Axes of the drawing: the truth's principal axes, the least spread one as "up".
     mu = truth.mean(0)
     _, _, Vt = np.linalg.svd(truth - mu, full_matrices=False)
@@ -71,11 +72,13 @@ def main() -> None:
     tr = frame(truth)
     labels = args.label or [r.name for r in args.runs]
     modes = [(False, "trajectory Sim(3)"), (True, "ICP")] if args.both else [(args.icp, "")]
-    rows = [(run, f"{name}, {how}" if how else name, icp)
-            for run, name in zip(args.runs, labels, strict=True) for icp, how in modes]  # fmt: skip
+    icps = [icp for icp, _ in modes]
+    rows = [(f"{name}, {how}" if how else name, cloud)
+            for run, name in zip(args.runs, labels, strict=True)
+            for (_, how), cloud in zip(modes, _aligned(seq, run, truth, icps))]  # fmt: skip
     fig, axes = plt.subplots(len(rows), 2, figsize=(8, 3.2 * len(rows)), squeeze=False)
-    for row, (run, name, icp) in enumerate(rows):
-        M = frame(_aligned(args.clip, run, truth, icp))
+    for row, (name, cloud) in enumerate(rows):
+        M = frame(cloud)
         for col, (a, b, view) in enumerate(((0, 1, "top-down"), (0, 2, "side"))):
             ax = axes[row, col]
             ax.scatter(tr[:, a], tr[:, b], s=0.2, c="0.7", lw=0, rasterized=True)

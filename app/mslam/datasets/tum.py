@@ -111,19 +111,20 @@ def load_tum(
         gt_t, gt_T = _ground_truth(gt)
         idx = _nearest(np.array(stamps), gt_t, MAX_DT)
         T_WC = [gt_T[k] if k >= 0 else None for k in idx]
+    eth3d = folder / "calibration.txt"
+    named = [vals for key, vals in TUM_CALIB.items() if key in folder.name]
+    freiburg = named[-1] if named else None  # the camera the folder's name gives
     cal = apply_calibration(calib)
     if cal is None and (folder / "calib.yaml").is_file():
         cal = apply_calibration(folder / "calib.yaml")
-    if cal is None and (folder / "calibration.txt").is_file():
-        cal = _eth3d_calibration(folder / "calibration.txt", rgb_paths[0])
-    if cal is None:
-        for key, vals in TUM_CALIB.items():
-            if key in folder.name:
-                fx, fy, cx, cy = vals[:4]
-                cal = Calibration(640, 480, fx, fy, cx, cy, tuple(vals[4:]), 5000.0)
+    if cal is None and eth3d.is_file():
+        cal = _eth3d_calibration(eth3d, rgb_paths[0])
+    if cal is None and freiburg is not None:
+        fx, fy, cx, cy = freiburg[:4]
+        cal = Calibration(640, 480, fx, fy, cx, cy, tuple(freiburg[4:]), 5000.0)
     # 5000 per metre is stated by the TUM and ETH3D datasets; any other folder in their layout
     # (a camera that stores millimetres) may differ unless its calibration says so.
-    stated = any(key in folder.name for key in TUM_CALIB) or (folder / "calibration.txt").is_file()
+    stated = freiburg is not None or eth3d.is_file()
     return FileSequence(folder.name, rgb_paths, stamps, depth_paths, T_WC, cal, 5000.0, size,
                         depth_scale_assumed=not stated)  # fmt: skip
 
